@@ -1,0 +1,42 @@
+"""Settings at scene.irad: what the panels show and the engine reads."""
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+VARIANTS = [
+    ('CLASSIC', "Classic", "Instant Radiosity (Keller 1997): particles from the lights, "
+                           "a virtual point light at every diffuse bounce"),
+]
+
+
+class IRadSettings(bpy.types.PropertyGroup):
+    variant: EnumProperty(name="Variant", items=VARIANTS, default='CLASSIC',
+                          description="How virtual point lights are placed")
+    particles: IntProperty(name="Particles", default=512, min=1, soft_min=16,
+                           soft_max=65536, max=10_000_000,
+                           description="Particles shot from the lights; every diffuse bounce "
+                                       "leaves a virtual point light (VPL)")
+    max_bounces: IntProperty(name="Max Bounces", default=8, min=0, soft_max=32, max=1024,
+                             description="Most indirect bounces a particle makes; 0 renders "
+                                         "direct light only")
+    clamp: FloatProperty(name="Clamp", default=0.1, min=0.0, soft_max=1.0, max=100.0,
+                         description="VPL clamping distance as a fraction of the scene size; "
+                                     "hides the bright spots next to VPLs (0 disables)")
+    aa_samples: IntProperty(name="AA Samples", default=4, min=1, soft_max=64, max=4096,
+                            description="Camera rays per pixel (anti-aliasing)")
+    light_samples: IntProperty(name="Light Samples", default=4, min=1, soft_max=64, max=4096,
+                               description="Shadow rays per pixel to each area light, "
+                                           "emissive mesh and the world (soft shadows)")
+    seed: IntProperty(name="Seed", default=0, min=0,
+                      description="Randomisation of the sample sequences")
+    use_animated_seed: BoolProperty(name="Animated Seed", default=False,
+                                    description="Use a different seed for every frame")
+
+
+def register():
+    bpy.utils.register_class(IRadSettings)
+    bpy.types.Scene.irad = PointerProperty(type=IRadSettings)
+
+
+def unregister():
+    del bpy.types.Scene.irad
+    bpy.utils.unregister_class(IRadSettings)
