@@ -19,6 +19,7 @@ class Mesh:
     material_index: np.ndarray   # int32 (T,): index into Materials
     object_index: np.ndarray     # int32 (T,): index into object_names (the object id pass)
     object_names: list = field(default_factory=list)
+    object_holdout: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (O,)
 
     @property
     def triangle_count(self) -> int:
