@@ -1,14 +1,85 @@
 """The INSTANT_RADIOSITY RenderEngine: Blender glue around render.render_frame."""
 import bpy
+import numpy as np
+
+from . import extract, render
+from .frame import InvalidScene
+from .rays import RayTracerCache
+
+# Extra passes we always write; Depth, Normal and Albedo are added beside them.
+PASSES = [(name, channels) for name, channels in render.PASS_CHANNELS.items()
+          if name != "Combined"]
+_CHANNEL_IDS = {1: "Z", 3: "RGB", 4: "RGBA"}
+
+
+def render_settings(scene):
+    irad = scene.irad
+    seed = irad.seed + (scene.frame_current if irad.use_animated_seed else 0)
+    return render.RenderSettings(
+        particles=irad.particles, max_bounces=irad.max_bounces, clamp=irad.clamp,
+        aa_samples=irad.aa_samples, light_samples=irad.light_samples, seed=seed,
+        variant=irad.variant, film_transparent=scene.render.film_transparent)
 
 
 class InstantRadiosityEngine(bpy.types.RenderEngine):
     bl_idname = "INSTANT_RADIOSITY"
     bl_label = "Instant Radiosity"
     bl_use_preview = False
+    bl_use_postprocess = True
+
+    # One BVH cache per engine class: frames of an animation with unchanged geometry
+    # reuse the Embree scene instead of rebuilding it.
+    tracer_cache = RayTracerCache()
+
+    def update_render_passes(self, scene=None, renderlayer=None):
+        self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
+        for name, channels in PASSES:
+            kind = 'VALUE' if channels == 1 else ('VECTOR' if name == "Normal" else 'COLOR')
+            self.register_pass(scene, renderlayer, name, channels, _CHANNEL_IDS[channels], kind)
 
     def render(self, depsgraph):
-        raise NotImplementedError  # filled in by the render pipeline
+        scene = depsgraph.scene
+        width, height = self.resolution_x, self.resolution_y
+        try:
+            data = extract.extract_scene(depsgraph)
+            for message in data.warnings:
+                self.report({'WARNING'}, message)
+            result = render.render_frame(
+                data, render_settings(scene), cancel=self.test_break,
+                progress=self._progress, tracer_cache=self.tracer_cache)
+        except render.Cancelled:
+            return
+        except InvalidScene as error:
+            self.report({'ERROR'}, f"Instant Radiosity: {error}")
+            self._write({"Combined": np.zeros((height, width, 4), np.float32)}, depsgraph)
+            return
+        for message in result.warnings:
+            self.report({'WARNING'}, message)
+        self._write(result.passes, depsgraph)
+        stats = result.stats
+        self.update_stats("", f"VPLs {stats['vpls']} | {stats['time']:.2f} s")
+
+    def _progress(self, fraction, message):
+        self.update_progress(fraction)
+        self.update_stats("", message)
+
+    def _write(self, passes, depsgraph):
+        view_layer = depsgraph.view_layer
+        layer_name = view_layer.name
+        # Depth and Normal already exist when the view layer enables Blender's own.
+        builtin = {"Depth": view_layer.use_pass_z, "Normal": view_layer.use_pass_normal}
+        for name, channels in PASSES:
+            if name in passes and not builtin.get(name, False):
+                self.add_pass(name, channels, _CHANNEL_IDS[channels], layer=layer_name)
+        image = next(iter(passes.values()))
+        height, width = image.shape[:2]
+        result = self.begin_result(0, 0, width, height, layer=layer_name)
+        for render_pass in result.layers[0].passes:
+            data = passes.get(render_pass.name)
+            if data is not None and data.shape[2] == render_pass.channels:
+                # Blender stores rows bottom-up; ours are top-down.
+                render_pass.rect.foreach_set(np.ascontiguousarray(data[::-1]).ravel())
+        self.end_result(result)
 
 
 def register():

@@ -1,0 +1,133 @@
+"""Batched ray queries against one Embree scene per frame (embreex, Embree 4).
+
+All queries take and return numpy arrays; big batches are split over a thread pool
+because embreex releases the GIL inside `run`, so both cores trace at once.
+"""
+import hashlib
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+# Rays per thread task: big enough to amortise the Python call, small enough to balance.
+_TASK_RAYS = 1 << 16
+_pool = None
+
+
+def worker_count():
+    return max(1, os.cpu_count() or 1)
+
+
+def thread_pool():
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=worker_count(), thread_name_prefix="irad")
+    return _pool
+
+
+def parallel_map(function, ranges):
+    """Run function(start, stop) over ranges in the pool, results in order."""
+    if len(ranges) == 1:
+        return [function(*ranges[0])]
+    return list(thread_pool().map(lambda r: function(*r), ranges))
+
+
+def split_ranges(count, pieces, minimum=_TASK_RAYS):
+    pieces = max(1, min(pieces, -(-count // minimum)))
+    edges = np.linspace(0, count, pieces + 1).astype(np.int64)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def triangle_fingerprint(triangles):
+    """A cheap key for 'did the geometry change': hash of the vertex bytes."""
+    return hashlib.blake2b(np.ascontiguousarray(triangles).tobytes(), digest_size=16).digest()
+
+
+@dataclass
+class Hits:
+    distance: np.ndarray     # float32 (n,), inf where the ray missed
+    triangle: np.ndarray     # int32 (n,), -1 where the ray missed
+    barycentric: np.ndarray  # float32 (n, 2): (u, v) of the hit within its triangle
+
+    @property
+    def hit(self):
+        return self.triangle >= 0
+
+
+class RayTracer:
+    """Closest-hit and any-hit queries over a fixed set of world-space triangles.
+    threads=False keeps a query on the calling thread (for callers that already run
+    in the pool)."""
+
+    def __init__(self, triangles):
+        from embreex import mesh_construction, rtcore_scene
+        self.triangles = np.ascontiguousarray(triangles, np.float32)
+        self.fingerprint = triangle_fingerprint(self.triangles)
+        self.empty = len(self.triangles) == 0
+        flat = self.triangles.reshape(-1, 3)
+        self.extent = float(np.linalg.norm(flat.max(0) - flat.min(0))) if not self.empty else 1.0
+        self.magnitude = float(np.abs(flat).max()) if not self.empty else 0.0
+        if not self.empty:
+            self._scene = rtcore_scene.EmbreeScene()
+            mesh_construction.TriangleMesh(self._scene, self.triangles)
+
+    def offset_scale(self):
+        """Ray-origin offset that stays above float32 round-off at any scene scale:
+        a small fraction of the scene size plus a few ulps of its coordinates."""
+        return 1e-5 * self.extent + 1e-6 * self.magnitude
+
+    def intersect(self, origins, directions, tfar=None, threads=True):
+        n = len(origins)
+        if self.empty or n == 0:
+            return Hits(np.full(n, np.inf, np.float32), np.full(n, -1, np.int32),
+                        np.zeros((n, 2), np.float32))
+        origins = np.ascontiguousarray(origins, np.float32)
+        directions = np.ascontiguousarray(directions, np.float32)
+        tfar = self._tfar(tfar, n)
+        parts = parallel_map(
+            lambda a, b: self._scene.run(origins[a:b], directions[a:b], dists=tfar[a:b].copy(),
+                                         output=1),
+            split_ranges(n, 4 * worker_count() if threads else 1))
+        prim = np.concatenate([p['primID'] for p in parts]).astype(np.int32)
+        dist = np.concatenate([p['tfar'] for p in parts])
+        bary = np.stack([np.concatenate([p['u'] for p in parts]),
+                         np.concatenate([p['v'] for p in parts])], -1)
+        dist[prim < 0] = np.inf
+        return Hits(dist, prim, bary)
+
+    def occluded(self, origins, directions, tfar, threads=True):
+        """True where something blocks the segment origin + t*direction, 0 < t < tfar."""
+        n = len(origins)
+        if self.empty or n == 0:
+            return np.zeros(n, bool)
+        origins = np.ascontiguousarray(origins, np.float32)
+        directions = np.ascontiguousarray(directions, np.float32)
+        tfar = self._tfar(tfar, n)
+        parts = parallel_map(
+            lambda a, b: self._scene.run(origins[a:b], directions[a:b], dists=tfar[a:b].copy(),
+                                         query='OCCLUDED'),
+            split_ranges(n, 4 * worker_count() if threads else 1))
+        return np.concatenate(parts) >= 0
+
+    @staticmethod
+    def _tfar(tfar, n):
+        if tfar is None:
+            return np.full(n, 1e30, np.float32)
+        tfar = np.broadcast_to(np.asarray(tfar, np.float32), (n,))
+        return np.ascontiguousarray(np.minimum(tfar, 1e30))
+
+
+class RayTracerCache:
+    """Keeps the last frame's RayTracer and reuses it while the triangles are unchanged."""
+
+    def __init__(self):
+        self._tracer = None
+        self.builds = 0
+
+    def get(self, triangles):
+        key = triangle_fingerprint(np.ascontiguousarray(triangles, np.float32))
+        if self._tracer is None or self._tracer.fingerprint != key:
+            self._tracer = RayTracer(triangles)
+            self.builds += 1
+        return self._tracer

@@ -1,0 +1,152 @@
+"""Low-discrepancy sequences and the warps that map them onto lights and hemispheres.
+
+Keller 1997 draws particles from the Halton sequence; we scramble its digits with
+one random permutation per digit and dimension (random digit scrambling), which
+keeps the stratification and decorrelates the high dimensions and the frames.
+"""
+import numpy as np
+
+_PRIMES = None
+
+
+def primes(count):
+    """The first `count` primes."""
+    global _PRIMES
+    if _PRIMES is None or len(_PRIMES) < count:
+        limit = max(64, int(count * (np.log(count + 2) + np.log(np.log(count + 3))) + 10))
+        sieve = np.ones(limit + 1, bool)
+        sieve[:2] = False
+        for i in range(2, int(limit ** 0.5) + 1):
+            if sieve[i]:
+                sieve[i * i::i] = False
+        _PRIMES = np.flatnonzero(sieve)
+    return _PRIMES[:count]
+
+
+def radical_inverse(base, indices, permutations=None):
+    """Van der Corput radical inverse of `indices` in `base`, digits optionally
+    permuted (permutations: (digits, base) int array, one permutation per digit)."""
+    indices = np.asarray(indices, np.int64).copy()
+    digits = int(np.ceil(32 * np.log(2) / np.log(base)))
+    result = np.zeros(indices.shape, np.float64)
+    scale = 1.0 / base
+    for k in range(digits):
+        digit = indices % base
+        if permutations is not None:
+            digit = permutations[k][digit]
+        result += digit * scale
+        indices //= base
+        scale /= base
+    return np.minimum(result, 1.0 - 2.0 ** -53)
+
+
+def _digit_permutations(base, rng):
+    digits = int(np.ceil(32 * np.log(2) / np.log(base)))
+    return np.array([rng.permutation(base) for _ in range(digits)])
+
+
+def halton(count, dims, seed=0, start=0):
+    """(count, dims) points of the Halton sequence, indices start..start+count-1.
+    seed 0 is the plain sequence; other seeds scramble the digits."""
+    index = np.arange(start, start + count, dtype=np.int64)
+    rng = np.random.default_rng(seed) if seed else None
+    out = np.empty((count, dims), np.float64)
+    for d, base in enumerate(primes(dims)):
+        perms = _digit_permutations(int(base), rng) if rng is not None else None
+        out[:, d] = radical_inverse(int(base), index, perms)
+    return out
+
+
+def hammersley(count, dims, seed=0):
+    """Hammersley points: i/count in the first dimension, Halton in the rest,
+    shifted by a Cranley-Patterson rotation when seed != 0."""
+    out = np.empty((count, dims), np.float64)
+    out[:, 0] = (np.arange(count) + 0.5) / count
+    if dims > 1:
+        out[:, 1:] = halton(count, dims - 1)
+    if seed:
+        out = cranley_patterson(out, seed)
+    return out
+
+
+def cranley_patterson(points, seed):
+    """Toroidal shift of every dimension by one random offset (Cranley & Patterson 1976)."""
+    shift = np.random.default_rng(seed).random(points.shape[-1])
+    return (points + shift) % 1.0
+
+
+def jittered_2d(count, rng):
+    """Stratified (jittered) samples in [0,1)^2: a sqrt(count)^2 grid, one sample a cell,
+    the remainder uniform."""
+    side = int(np.sqrt(count))
+    cells = side * side
+    out = rng.random((count, 2))
+    if side > 0:
+        grid = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing='ij'), -1)
+        out[:cells] = (grid.reshape(-1, 2) + out[:cells]) / side
+    return out
+
+
+# -- warps ------------------------------------------------------------------
+
+def square_to_disk(u):
+    """Concentric map of [0,1)^2 onto the unit disk (Shirley & Chiu 1997), (n, 2)."""
+    a = 2.0 * u[..., 0] - 1.0
+    b = 2.0 * u[..., 1] - 1.0
+    first = np.abs(a) > np.abs(b)
+    safe_a = np.where(a == 0, 1.0, a)
+    safe_b = np.where(b == 0, 1.0, b)
+    r = np.where(first, a, b)
+    phi = np.where(first, (np.pi / 4) * (b / safe_a), np.pi / 2 - (np.pi / 4) * (a / safe_b))
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+
+
+def square_to_cosine_hemisphere(u):
+    """Cosine-weighted directions about +Z (Malley's method), pdf = cos / pi."""
+    d = square_to_disk(u)
+    z = np.sqrt(np.maximum(0.0, 1.0 - (d * d).sum(-1)))
+    return np.concatenate([d, z[..., None]], -1)
+
+
+def square_to_sphere(u):
+    """Uniform directions on the unit sphere, pdf = 1 / (4 pi)."""
+    z = 1.0 - 2.0 * u[..., 0]
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = 2.0 * np.pi * u[..., 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+
+
+def square_to_cone(u, cos_max):
+    """Uniform directions in the cone about +Z with half-angle acos(cos_max),
+    pdf = 1 / (2 pi (1 - cos_max))."""
+    z = 1.0 - u[..., 0] * (1.0 - cos_max)
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = 2.0 * np.pi * u[..., 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+
+
+def square_to_triangle(u):
+    """Uniform barycentrics (b1, b2) on a triangle (Heitz 2019 low-distortion map)."""
+    b0 = u[..., 0] / 2
+    b1 = u[..., 1] / 2
+    offset = b1 - b0
+    shift_b0 = offset > 0
+    b1 = np.where(shift_b0, b1 + offset, b1)
+    b0 = np.where(shift_b0, b0, b0 - offset)
+    return np.stack([b0, b1], -1)
+
+
+def orthonormal_basis(n):
+    """Tangent frames (t, b) for unit normals n (n, 3), branchless (Duff et al. 2017)."""
+    sign = np.where(n[..., 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + n[..., 2])
+    b = n[..., 0] * n[..., 1] * a
+    t = np.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], -1)
+    s = np.stack([b, sign + n[..., 1] ** 2 * a, -n[..., 1]], -1)
+    return t, s
+
+
+def to_world(local, n):
+    """Rotate local directions (about +Z) into the frame of normals n."""
+    t, s = orthonormal_basis(n)
+    return local[..., :1] * t + local[..., 1:2] * s + local[..., 2:3] * n

@@ -1,0 +1,104 @@
+"""Classic Instant Radiosity (Keller 1997, sec. 2): particles leave the lights in
+proportion to their power and leave a virtual point light at every diffuse bounce."""
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import geometry, sampling
+
+# Halton dimensions: 6 for the particle's start on its light, 3 per bounce.
+_EMIT_DIMS = 6
+_BOUNCE_DIMS = 3
+
+
+@dataclass
+class VPLs:
+    position: np.ndarray   # float64 (M, 3)
+    normal: np.ndarray     # float64 (M, 3), unit, on the side the light arrived from
+    flux: np.ndarray       # float64 (M, 3): power the VPL re-emits [W], albedo applied
+    bounce: np.ndarray     # int32 (M,): 1 for the first diffuse hit
+
+    @property
+    def count(self):
+        return len(self.position)
+
+    @staticmethod
+    def empty():
+        return VPLs(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int32))
+
+    def subset(self, mask_or_index):
+        return VPLs(self.position[mask_or_index], self.normal[mask_or_index],
+                    self.flux[mask_or_index], self.bounce[mask_or_index])
+
+
+def particles_per_emitter(emitters, particles):
+    """Particle counts proportional to each emitter's power, at least one each, so
+    that every light's power is estimated by its own particles (unbiased)."""
+    power = np.array([e.power().mean() for e in emitters], np.float64)
+    share = power / power.sum()
+    return np.maximum(1, np.round(share * particles)).astype(np.int64)
+
+
+def emit_particles(emitters, counts, points):
+    """Origins, directions and flux of all particles; `points` are their Halton rows."""
+    origins, directions, fluxes = [], [], []
+    start = 0
+    for emitter, n in zip(emitters, counts):
+        o, d, f = emitter.emit(points[start:start + n, :_EMIT_DIMS])
+        origins.append(np.asarray(o, np.float64))
+        directions.append(np.asarray(d, np.float64))
+        fluxes.append(np.asarray(f, np.float64))
+        start += n
+    return np.concatenate(origins), np.concatenate(directions), np.concatenate(fluxes)
+
+
+def russian_roulette_survival(albedo):
+    """Survival probability at a bounce: the surface's mean reflectivity (Keller 1997:
+    the expected path length then follows the scene's mean albedo)."""
+    return np.clip(albedo.mean(1), 0.0, 1.0)
+
+
+def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None):
+    """Shoot `particles` light paths and return their diffuse hits as VPLs."""
+    if max_bounces < 1 or not frame.emitters or len(frame.triangles) == 0:
+        return VPLs.empty()
+    dims = _EMIT_DIMS + _BOUNCE_DIMS * max_bounces
+    counts = particles_per_emitter(frame.emitters, particles)
+    points = sampling.halton(int(counts.sum()), dims, seed=seed + 1, start=1)
+    origin, direction, flux = emit_particles(frame.emitters, counts, points)
+    path = np.arange(len(origin))
+    eps = frame.offset()
+    found = []
+    for bounce in range(1, max_bounces + 1):
+        if len(path) == 0 or (cancel and cancel()):
+            break
+        hits = frame.tracer.intersect(origin, direction)
+        keep = hits.hit
+        tri = hits.triangle[keep]
+        path, flux, incoming = path[keep], flux[keep], direction[keep]
+        position = geometry.surface_points(frame.triangles, tri, hits.barycentric[keep])
+        # Surfaces are two-sided: normals face the side the particle came from.
+        geo = geometry.face_forward(frame.geo_normals[tri], -incoming)
+        shading = geometry.face_forward(
+            geometry.shading_normals(frame.corner_normals, tri, hits.barycentric[keep], geo), geo)
+        albedo = frame.albedo[tri]
+        vpl_flux = flux * albedo
+        stored = vpl_flux.max(1) > 0
+        found.append(VPLs(position[stored], shading[stored], vpl_flux[stored],
+                          np.full(int(stored.sum()), bounce, np.int32)))
+        # Russian roulette, then a cosine-weighted bounce about the shading normal.
+        u = points[path, _EMIT_DIMS + _BOUNCE_DIMS * (bounce - 1):][:, :_BOUNCE_DIMS]
+        q = russian_roulette_survival(albedo)
+        survive = u[:, 0] < q
+        local = sampling.square_to_cosine_hemisphere(u[survive, 1:3])
+        new_dir = sampling.to_world(local, shading[survive])
+        above = np.einsum('ij,ij->i', new_dir, geo[survive]) > 0
+        idx = np.flatnonzero(survive)[above]
+        path = path[idx]
+        flux = vpl_flux[idx] / q[idx, None]
+        direction = new_dir[above]
+        origin = position[idx] + geo[idx] * eps
+    if not found:
+        return VPLs.empty()
+    return VPLs(*[np.concatenate([getattr(v, f) for v in found])
+                  for f in ('position', 'normal', 'flux', 'bounce')])
