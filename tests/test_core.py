@@ -1,0 +1,102 @@
+"""Core maths on scenes made of arrays: furnace energy, determinism, robustness."""
+import numpy as np
+import pytest
+
+import synthetic
+
+
+@pytest.fixture
+def core(addon):
+    return addon.irad_addon
+
+
+def render(core, data, **settings):
+    from_settings = core.render.RenderSettings(**settings)
+    return core.render.render_frame(data, from_settings)
+
+
+@pytest.mark.parametrize("albedo", [0.5, 0.8])
+def test_furnace_radiance_is_emission_over_one_minus_albedo(core, albedo):
+    # A closed box that emits 1 everywhere and reflects `albedo`: L = 1 / (1 - albedo).
+    data = synthetic.scene(core.scene_data, synthetic.closed_box(4), [albedo] * 3,
+                           emission=(1, 1, 1), camera=synthetic.camera(core.scene_data, size=16))
+    result = render(core, data, particles=32768, max_bounces=200, clamp=0.0,
+                    aa_samples=1, light_samples=64)
+    image = result.passes["Combined"][..., :3]
+    assert np.isfinite(image).all()
+    assert image.mean() == pytest.approx(1.0 / (1.0 - albedo), rel=0.01)
+
+
+def test_halton_is_stratified_and_scrambling_keeps_it(core):
+    s = core.sampling
+    for seed in (0, 7):
+        points = s.halton(1024, 3, seed=seed, start=0)
+        for d in range(3):
+            base = int(s.primes(3)[d])
+            strata = base ** int(np.log(1024) / np.log(base))
+            # + 1e-9: k / 3^n is not exact in binary floating point.
+            cell = np.floor(points[:strata, d] * strata + 1e-9).astype(int)
+            counts = np.bincount(cell, minlength=strata)
+            assert (counts == 1).all(), (seed, d)
+    assert not np.allclose(s.halton(64, 2, seed=1), s.halton(64, 2, seed=2))
+
+
+def test_same_seed_same_image_other_seed_other_noise(core):
+    sd = core.scene_data
+    light = sd.PointLight(np.array([0.0, 0.0, 0.5]), np.ones(3), 100.0, 0.0)
+    data = synthetic.scene(sd, synthetic.closed_box(2), [0.7] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=16))
+    a = render(core, data, particles=64, seed=3).passes["Combined"]
+    b = render(core, data, particles=64, seed=3).passes["Combined"]
+    c = render(core, data, particles=64, seed=4).passes["Combined"]
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_degenerate_and_nan_triangles_are_skipped_without_nan(core):
+    sd = core.scene_data
+    box = synthetic.closed_box(2)
+    bad = np.array([[[0, 0, 0], [0, 0, 0], [0, 0, 0]],          # a point
+                    [[0, 0, 0], [1, 1, 1], [2, 2, 2]],          # collinear
+                    [[np.nan, 0, 0], [1, 0, 0], [0, 1, 0]]],    # NaN
+                   np.float32)
+    tris = np.concatenate([box, bad])
+    normals = np.concatenate([synthetic.flat_normals(box), np.full((3, 3, 3), np.nan, np.float32)])
+    light = sd.PointLight(np.array([0.0, 0.0, 0.0]), np.ones(3), 100.0, 0.0)
+    data = synthetic.scene(sd, tris, [0.5] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=16), normals=normals)
+    result = render(core, data, particles=64)
+    for image in result.passes.values():
+        assert np.isfinite(image).all()
+    assert result.passes["Combined"][..., :3].min() >= 0
+    assert any("3 degenerate triangles" in w for w in result.warnings)
+
+
+def test_zero_power_and_zero_area_lights_give_black_not_nan(core):
+    sd = core.scene_data
+    lights = [sd.PointLight(np.zeros(3), np.ones(3), 0.0, 0.0),
+              sd.AreaLight(np.zeros(3), np.zeros(3), np.zeros(3), np.array([0, 0, -1.0]),
+                           np.ones(3), 100.0, 'RECTANGLE'),
+              sd.SpotLight(np.zeros(3), np.array([0, 0, -1.0]), np.ones(3), 100.0, 0.0, 0.0, 0.0)]
+    data = synthetic.scene(sd, synthetic.closed_box(2), [0.5] * 3, lights=lights,
+                           camera=synthetic.camera(sd, size=16))
+    result = render(core, data, particles=64)
+    assert np.isfinite(result.passes["Combined"]).all()
+    assert result.passes["Combined"][..., :3].max() == 0
+    assert any("no light with non-zero power" in w for w in result.warnings)
+
+
+def test_bvh_reused_while_geometry_is_unchanged(core):
+    sd = core.scene_data
+    cache = core.rays.RayTracerCache()
+    light = sd.PointLight(np.array([0.0, 0.0, 0.5]), np.ones(3), 100.0, 0.0)
+    box = synthetic.closed_box(2)
+    settings = core.render.RenderSettings(particles=16, aa_samples=1)
+    for position in ([0, 0, 0.5], [0.2, 0, 0.5]):   # the light moves, geometry does not
+        light.position = np.array(position)
+        data = synthetic.scene(sd, box, [0.5] * 3, lights=[light], camera=synthetic.camera(sd, size=8))
+        core.render.render_frame(data, settings, tracer_cache=cache)
+    assert cache.builds == 1
+    data = synthetic.scene(sd, box * 1.5, [0.5] * 3, lights=[light], camera=synthetic.camera(sd, size=8))
+    core.render.render_frame(data, settings, tracer_cache=cache)
+    assert cache.builds == 2
