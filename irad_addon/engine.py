@@ -1,4 +1,6 @@
 """The INSTANT_RADIOSITY RenderEngine: Blender glue around render.render_frame."""
+import traceback
+
 import bpy
 import numpy as np
 
@@ -50,14 +52,22 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
         except render.Cancelled:
             return
         except InvalidScene as error:
-            self.report({'ERROR'}, f"Instant Radiosity: {error}")
-            self._write({"Combined": np.zeros((height, width, 4), np.float32)}, depsgraph)
+            self._fail(f"Instant Radiosity: {error}", width, height, depsgraph)
+            return
+        except Exception as error:   # a bug of ours: say so plainly, keep the trace in the console
+            traceback.print_exc()
+            self._fail(f"Instant Radiosity failed: {type(error).__name__}: {error}",
+                       width, height, depsgraph)
             return
         for message in result.warnings:
             self.report({'WARNING'}, message)
         self._write(result.passes, depsgraph)
         stats = result.stats
         self.update_stats("", f"VPLs {stats['vpls']} | {stats['time']:.2f} s")
+
+    def _fail(self, message, width, height, depsgraph):
+        self.report({'ERROR'}, message)
+        self._write({"Combined": np.zeros((height, width, 4), np.float32)}, depsgraph)
 
     def _progress(self, fraction, message):
         self.update_progress(fraction)

@@ -64,7 +64,7 @@ def prepare_frame(scene: SceneData, tracer_cache: RayTracerCache | None = None) 
     bounds = geometry.bounding_sphere(tris)
     emission = emission_table[material]
     emitters = lights.build_emitters(scene.lights, tris, emission,
-                                     scene.world_radiance, bounds)
+                                     scene.world_radiance, bounds, tracer.offset_scale())
     return Frame(scene, tris, corner, geo, albedo_table[material], emission,
                  object_index, holdout, tracer, emitters, bounds, int((~keep).sum()))
 

@@ -74,13 +74,14 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
     pairs = np.flatnonzero(valid)
     if len(pairs):
         # Unnormalised directions: the segment is t in [0, 1), shortened at the VPL's
-        # end by the offset so the VPL's own surface does not block it.
+        # end by the offset (more at grazing angles) so its own surface does not block it.
         direction = np.empty((len(pairs), 3), f32)
         direction[:, 0] = dx.ravel()[pairs]
         direction[:, 1] = dy.ravel()[pairs]
         direction[:, 2] = dz.ravel()[pairs]
         origin = (Pf + Gf * f32(eps))[pairs // dx.shape[1]]
-        tfar = f32(1 - 1e-5) - f32(2 * eps) * inv.ravel()[pairs]
+        tfar = f32(1 - 1e-5) - f32(2 * eps) * inv.ravel()[pairs] / np.maximum(
+            cos_y.ravel()[pairs], f32(1e-2))
         blocked = tracer.occluded(origin, direction, tfar, threads=False)
         weight.ravel()[pairs[blocked]] = 0
     return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi

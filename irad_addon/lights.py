@@ -67,7 +67,7 @@ class PointEmitter:
         radiance = self.intensity / (np.pi * self.radius ** 2)
         sin2 = np.minimum((self.radius / np.maximum(dist, 1e-30)) ** 2, 1.0)
         cos_max = np.sqrt(1.0 - sin2)
-        local = sampling.square_to_cone(u, cos_max[:, None] if u.ndim > 1 else cos_max)
+        local = sampling.square_to_cone(u, cos_max)
         direction = sampling.to_world(local, to_center)
         solid_angle = 2 * np.pi * (1.0 - cos_max)
         cos_a = local[:, 2]
@@ -214,8 +214,9 @@ class EmissiveMeshEmitter:
     delta = False
     sides = 2.0
 
-    def __init__(self, triangles, radiance):
+    def __init__(self, triangles, radiance, surface_offset=0.0):
         self.triangles = triangles.astype(np.float64)
+        self.surface_offset = surface_offset
         self.radiance = np.asarray(radiance, np.float64)
         self.normals = geometry.geometric_normals(self.triangles)
         self.areas = geometry.triangle_areas(self.triangles)
@@ -258,12 +259,17 @@ class EmissiveMeshEmitter:
         cos_x = np.maximum(_dot(normals, direction), 0.0)
         pdf_area = self.pick[index] / np.maximum(self.areas[index], 1e-300)
         g = cos_l * cos_x / np.maximum(dist * dist, 1e-30) / pdf_area
+        # The emitter is geometry too: stop the shadow ray before its surface, further
+        # at grazing angles where the ray runs close to it.
+        dist = dist - 2 * self.surface_offset / np.maximum(cos_l, 1e-2)
         return direction, dist, self.radiance[index] * g[:, None]
 
 
-def build_emitters(scene_lights, triangles, emission, world_radiance, bounds):
+def build_emitters(scene_lights, triangles, emission, world_radiance, bounds,
+                   surface_offset=0.0):
     """Emitters for every light with non-zero power, the emissive triangles
-    (per-triangle radiance `emission`) and the world."""
+    (per-triangle radiance `emission`) and the world. `surface_offset` is the
+    tracer's ray offset, for shadow rays that end on emissive geometry."""
     emitters = []
     for light in scene_lights:
         if isinstance(light, SpotLight):
@@ -280,7 +286,7 @@ def build_emitters(scene_lights, triangles, emission, world_radiance, bounds):
             emitters.append(e)
     lit = emission.max(1) > 0 if len(emission) else np.zeros(0, bool)
     if lit.any():
-        emitters.append(EmissiveMeshEmitter(triangles[lit], emission[lit]))
+        emitters.append(EmissiveMeshEmitter(triangles[lit], emission[lit], surface_offset))
     world = np.asarray(world_radiance, np.float64)
     if np.all(np.isfinite(world)) and world.max() > 0:
         emitters.append(WorldEmitter(world, bounds))
