@@ -19,6 +19,10 @@ def is_baked(ob):
     return False
 
 
+def _soft_falloff(light):
+    return bool(getattr(light, "use_soft_falloff", True))
+
+
 def _light_color(light):
     color = np.array(tuple(light.color)[:3], np.float64)
     if getattr(light, "use_temperature", False):
@@ -48,13 +52,13 @@ def light_from(ob, matrix, warn):
         r = float(light.shadow_soft_size)
         if not normalize and r > 0:              # Cycles: unnormalised -> no 1/(pi r^2)
             power *= math.pi * r * r
-        return PointLight(position, color, power, r)
+        return PointLight(position, color, power, r, _soft_falloff(light))
     if light.type == "SPOT":
         r = float(light.shadow_soft_size)
         if not normalize and r > 0:
             power *= math.pi * r * r
         return SpotLight(position, down, color, power, r,
-                         float(light.spot_size), float(light.spot_blend))
+                         float(light.spot_size), float(light.spot_blend), _soft_falloff(light))
     if light.type == "AREA":
         size = float(light.size)
         size_y = float(light.size_y) if light.shape in ("RECTANGLE", "ELLIPSE") else size

@@ -36,6 +36,7 @@ class PointEmitter:
         self.position = np.asarray(light.position, np.float64)
         self.intensity = np.asarray(light.color, np.float64) * light.power / (4 * np.pi)
         self.radius = max(float(light.radius), 0.0)
+        self.soft_falloff = bool(light.soft_falloff)
         self.delta = self.radius == 0.0
 
     def attenuation(self, direction_from_light):
@@ -62,6 +63,8 @@ class PointEmitter:
             e = self.intensity * (cos_x / np.maximum(dist * dist, 1e-30) *
                                   self.attenuation(-to_center))[:, None]
             return to_center, dist, e
+        if self.soft_falloff:
+            return self._incident_soft(points, normals, u, to_center)
         # Sphere light: uniform sampling of the cone it subtends (pbrt-v4 SphereLight),
         # radiance L = I / (pi r^2) so that it still has intensity I seen from afar.
         radiance = self.intensity / (np.pi * self.radius ** 2)
@@ -78,12 +81,27 @@ class PointEmitter:
         e = radiance * (cos_x * solid_angle * self.attenuation(-to_center))[:, None]
         return direction, distance, e
 
+    def _incident_soft(self, points, normals, u, to_center):
+        """Blender's soft falloff: a disc of radius r at the light that always faces
+        the receiver, radiance I / (pi r^2); near the light the irradiance goes
+        as 1 / (d^2 + r^2) instead of 1 / d^2 (measured, docs/radiometry.md)."""
+        radiance = self.intensity / (np.pi * self.radius ** 2)
+        t, s = sampling.orthonormal_basis(to_center)
+        disc = sampling.square_to_disk(u) * self.radius
+        sample = self.position + disc[:, :1] * t + disc[:, 1:2] * s
+        direction, dist = _unit(sample - points)
+        cos_disc = np.maximum(_dot(direction, to_center), 0.0)
+        cos_x = np.maximum(_dot(normals, direction), 0.0)
+        g = cos_disc * cos_x / np.maximum(dist * dist, 1e-30) * np.pi * self.radius ** 2
+        return direction, dist, radiance * (g * self.attenuation(-direction))[:, None]
+
 
 class SpotEmitter(PointEmitter):
     """Spot light: I(theta) = P / (4 pi) * smoothstep(t), no renormalisation to the cone."""
 
     def __init__(self, light: SpotLight):
-        super().__init__(PointLight(light.position, light.color, light.power, light.radius))
+        super().__init__(PointLight(light.position, light.color, light.power, light.radius,
+                                    light.soft_falloff))
         self.axis, _ = _unit(np.asarray(light.direction, np.float64))
         self.cos_half = float(np.cos(min(light.spot_size, np.pi) / 2))
         self.smooth = (1.0 - self.cos_half) * float(light.spot_blend)

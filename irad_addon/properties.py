@@ -2,6 +2,11 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
+from .render import RenderSettings
+
+# One source of truth for defaults: the core's RenderSettings.
+_DEFAULT = RenderSettings()
+
 VARIANTS = [
     ('CLASSIC', "Classic", "Instant Radiosity (Keller 1997): particles from the lights, "
                            "a virtual point light at every diffuse bounce"),
@@ -11,24 +16,26 @@ VARIANTS = [
 class IRadSettings(bpy.types.PropertyGroup):
     variant: EnumProperty(name="Variant", items=VARIANTS, default='CLASSIC',
                           description="How virtual point lights are placed")
-    particles: IntProperty(name="Particles", default=512, min=1, soft_min=16,
+    particles: IntProperty(name="Particles", default=_DEFAULT.particles, min=1, soft_min=16,
                            soft_max=65536, max=10_000_000,
                            description="Particles shot from the lights; every diffuse bounce "
                                        "leaves a virtual point light (VPL)")
-    max_bounces: IntProperty(name="Max Bounces", default=8, min=0, soft_max=32, max=1024,
+    max_bounces: IntProperty(name="Max Bounces", default=_DEFAULT.max_bounces, min=0, soft_max=32, max=1024,
                              description="Most indirect bounces a particle makes; 0 renders "
                                          "direct light only")
-    clamp: FloatProperty(name="Clamp", default=0.1, min=0.0, soft_max=1.0, max=100.0,
-                         description="VPL clamping distance as a fraction of the scene size; "
-                                     "hides the bright spots next to VPLs (0 disables)")
-    aa_samples: IntProperty(name="AA Samples", default=4, min=1, soft_max=64, max=4096,
+    clamp: FloatProperty(name="Clamp", default=_DEFAULT.clamp, min=0.0, soft_max=4.0, max=100.0,
+                         description="Closest distance at which a VPL lights a point, in units "
+                                     "of the mean VPL spacing: hides the bright spots next to "
+                                     "VPLs at the cost of darker corners; the bias shrinks as "
+                                     "VPLs are added (0 disables)")
+    aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1, soft_max=64, max=4096,
                             description="Camera rays per pixel (anti-aliasing)")
-    light_samples: IntProperty(name="Light Samples", default=4, min=1, soft_max=64, max=4096,
+    light_samples: IntProperty(name="Light Samples", default=_DEFAULT.light_samples, min=1, soft_max=64, max=4096,
                                description="Shadow rays per pixel to each area light, "
                                            "emissive mesh and the world (soft shadows)")
-    seed: IntProperty(name="Seed", default=0, min=0,
+    seed: IntProperty(name="Seed", default=_DEFAULT.seed, min=0,
                       description="Randomisation of the sample sequences")
-    use_animated_seed: BoolProperty(name="Animated Seed", default=False,
+    use_animated_seed: BoolProperty(name="Animated Seed", default=_DEFAULT.seed,
                                     description="Use a different seed for every frame")
 
 

@@ -40,6 +40,7 @@ class PointLight:
     color: np.ndarray            # (3,) linear RGB (temperature already applied)
     power: float                 # Blender "Power" [W], exposure already applied
     radius: float                # Blender "Radius" (shadow_soft_size)
+    soft_falloff: bool = True    # Blender "Soft Falloff" (use_soft_falloff)
 
 
 @dataclass
@@ -51,6 +52,7 @@ class SpotLight:
     radius: float
     spot_size: float             # full cone angle [rad]
     spot_blend: float            # [0, 1]
+    soft_falloff: bool = True
 
 
 @dataclass
