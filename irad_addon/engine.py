@@ -32,6 +32,8 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
     # One BVH cache per engine class: frames of an animation with unchanged geometry
     # reuse the Embree scene instead of rebuilding it.
     tracer_cache = RayTracerCache()
+    # What the last render wrote (pass names, stats): for scripts, the demo and tests.
+    last_render = {}
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
@@ -61,7 +63,8 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
             return
         for message in result.warnings:
             self.report({'WARNING'}, message)
-        self._write(result.passes, depsgraph)
+        written = self._write(result.passes, depsgraph)
+        type(self).last_render = {"passes": written, "stats": result.stats}
         stats = result.stats
         self.update_stats("", f"VPLs {stats['vpls']} | {stats['time']:.2f} s")
 
@@ -84,12 +87,15 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
         image = next(iter(passes.values()))
         height, width = image.shape[:2]
         result = self.begin_result(0, 0, width, height, layer=layer_name)
+        written = []
         for render_pass in result.layers[0].passes:
             data = passes.get(render_pass.name)
             if data is not None and data.shape[2] == render_pass.channels:
                 # Blender stores rows bottom-up; ours are top-down.
                 render_pass.rect.foreach_set(np.ascontiguousarray(data[::-1]).ravel())
+                written.append(render_pass.name)
         self.end_result(result)
+        return written
 
 
 def register():

@@ -20,7 +20,8 @@ class IRadSettings(bpy.types.PropertyGroup):
                            soft_max=65536, max=10_000_000,
                            description="Particles shot from the lights; every diffuse bounce "
                                        "leaves a virtual point light (VPL)")
-    max_bounces: IntProperty(name="Max Bounces", default=_DEFAULT.max_bounces, min=0, soft_max=32, max=1024,
+    max_bounces: IntProperty(name="Max Bounces", default=_DEFAULT.max_bounces, min=0,
+                             soft_max=32, max=1024,
                              description="Most indirect bounces a particle makes; 0 renders "
                                          "direct light only")
     clamp: FloatProperty(name="Clamp", default=_DEFAULT.clamp, min=0.0, soft_max=4.0, max=100.0,
@@ -28,14 +29,16 @@ class IRadSettings(bpy.types.PropertyGroup):
                                      "of the mean VPL spacing: hides the bright spots next to "
                                      "VPLs at the cost of darker corners; the bias shrinks as "
                                      "VPLs are added (0 disables)")
-    aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1, soft_max=64, max=4096,
+    aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1,
+                            soft_max=64, max=4096,
                             description="Camera rays per pixel (anti-aliasing)")
-    light_samples: IntProperty(name="Light Samples", default=_DEFAULT.light_samples, min=1, soft_max=64, max=4096,
+    light_samples: IntProperty(name="Light Samples", default=_DEFAULT.light_samples,
+                               min=1, soft_max=64, max=4096,
                                description="Shadow rays per pixel to each area light, "
                                            "emissive mesh and the world (soft shadows)")
     seed: IntProperty(name="Seed", default=_DEFAULT.seed, min=0,
                       description="Randomisation of the sample sequences")
-    use_animated_seed: BoolProperty(name="Animated Seed", default=_DEFAULT.seed,
+    use_animated_seed: BoolProperty(name="Animated Seed", default=False,
                                     description="Use a different seed for every frame")
 
 

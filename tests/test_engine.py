@@ -1,0 +1,113 @@
+"""The render engine on real Blender scenes: passes, bad input, progress and cancel."""
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from benchmarks import reference, scenes
+
+ENGINE = "INSTANT_RADIOSITY"
+
+
+def engine_class():
+    return next(c for c in bpy.types.RenderEngine.__subclasses__()
+                if getattr(c, "bl_idname", None) == ENGINE and c.is_registered)
+
+
+def small_scene(scene, light=True, camera=True, geometry=True):
+    scene.render.resolution_x = scene.render.resolution_y = 24
+    scene.render.engine = ENGINE
+    if geometry:
+        scenes.grid_plane(scene, "floor", 10.0, scenes.diffuse("floor", (0.8, 0.8, 0.8)))
+        scenes.box(scene, "cube", (1, 1, 1), scenes.diffuse("cube", (0.8, 0.2, 0.2)), (0, 0, 0.5))
+    if light:
+        scenes.light(scene, "POINT", 200.0, (1, -1, 3), shadow_soft_size=0.0)
+    if camera:
+        scenes.camera(scene, (0, -6, 4), (math.radians(55), 0, 0), lens_deg=50)
+    scene.irad.particles = 64
+    return scene
+
+
+def test_render_writes_every_pass(scene):
+    small_scene(scene)
+    image = reference.render_image(scene)
+    written = engine_class().last_render["passes"]
+    for name in ("Combined", "IRAD Direct", "IRAD Indirect", "Depth", "Normal", "Albedo"):
+        assert name in written
+    assert np.isfinite(image).all() and image.max() > 0
+    assert engine_class().last_render["stats"]["vpls"] > 0
+
+
+def test_passes_add_up_and_depth_is_camera_z(addon):
+    core = addon.irad_addon
+    sd = core.scene_data
+    import synthetic
+    light = sd.PointLight(np.array([0.0, 0.0, 0.5]), np.ones(3), 100.0, 0.0)
+    cam = synthetic.camera(sd, size=8)
+    data = synthetic.scene(sd, synthetic.closed_box(2), [0.6] * 3, lights=[light], camera=cam)
+    passes = core.render.render_frame(data, core.render.RenderSettings(particles=64)).passes
+    combined = passes["Combined"][..., :3]
+    assert np.allclose(combined, passes["IRAD Direct"] + passes["IRAD Indirect"], atol=1e-6)
+    # The camera at the origin looks down -Z at the face z = -1 of the box.
+    assert np.allclose(passes["Depth"], 1.0, atol=1e-4)
+    assert np.allclose(passes["Normal"], [0, 0, 1], atol=1e-5)
+    assert np.allclose(passes["Albedo"], 0.6, atol=1e-6)
+
+
+def test_no_camera_is_refused_with_a_message(scene):
+    small_scene(scene, camera=False)
+    with pytest.raises(RuntimeError, match="no camera"):
+        bpy.ops.render.render()
+
+
+@pytest.mark.parametrize("case", ["no lights", "no geometry", "zero power", "zero area",
+                                  "degenerate triangles"])
+def test_bad_input_renders_finite_with_a_clear_report(scene, capfd, case):
+    small_scene(scene, light=case not in ("no lights", "zero power", "zero area"),
+                geometry=case != "no geometry")
+    if case == "zero power":
+        scenes.light(scene, "POINT", 0.0, (0, 0, 3))
+    if case == "zero area":
+        scenes.light(scene, "AREA", 100.0, (0, 0, 3), size=0.0)
+    if case == "degenerate triangles":
+        mesh = bpy.data.meshes.new("sliver")
+        mesh.from_pydata([(0, 0, 1), (0, 0, 1), (1, 1, 1), (2, 2, 1)], [], [(0, 1, 2), (0, 2, 3)])
+        scene.collection.objects.link(bpy.data.objects.new("sliver", mesh))
+    image = reference.render_image(scene)
+    assert np.isfinite(image).all() and image.min() >= 0
+    out = capfd.readouterr().out
+    if case in ("no lights", "zero power", "zero area"):
+        assert "no light with non-zero power" in out
+        assert image.max() == 0
+    if case == "degenerate triangles":
+        assert "degenerate triangles" in out
+        assert image.max() > 0
+
+
+def test_cancel_stops_within_a_second_and_progress_rises(addon):
+    import time
+
+    import synthetic
+    core = addon.irad_addon
+    sd = core.scene_data
+    light = sd.PointLight(np.array([0.0, 0.0, 0.5]), np.ones(3), 100.0, 0.0)
+    data = synthetic.scene(sd, synthetic.closed_box(8), [0.7] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=256))
+    settings = core.render.RenderSettings(particles=20000)   # tens of seconds uncancelled
+    fractions = []
+    started = time.perf_counter()
+    cancel_at = [None]
+
+    def progress(fraction, message):
+        fractions.append(fraction)
+        if fraction > 0.25 and cancel_at[0] is None:
+            cancel_at[0] = time.perf_counter()   # the user presses Esc mid-gather
+
+    with pytest.raises(core.render.Cancelled):
+        core.render.render_frame(data, settings, cancel=lambda: cancel_at[0] is not None,
+                                 progress=progress)
+    assert cancel_at[0] is not None
+    assert time.perf_counter() - cancel_at[0] < 1.0
+    assert fractions == sorted(fractions)
+    assert time.perf_counter() - started < 10
