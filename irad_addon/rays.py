@@ -69,7 +69,8 @@ class RayTracer:
         self.extent = float(np.linalg.norm(flat.max(0) - flat.min(0))) if not self.empty else 1.0
         self.magnitude = float(np.abs(flat).max()) if not self.empty else 0.0
         if not self.empty:
-            self._scene = rtcore_scene.EmbreeScene()
+            # Robust (watertight) traversal: rays through shared edges never slip through.
+            self._scene = rtcore_scene.EmbreeScene(robust=True)
             mesh_construction.TriangleMesh(self._scene, self.triangles)
 
     def offset_scale(self):
