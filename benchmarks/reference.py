@@ -73,7 +73,6 @@ def _neutral_colour(scene):
     v.gamma = 1.0
     v.use_curve_mapping = False
     scene.render.dither_intensity = 0.0
-    scene.render.resolution_percentage = 100
     scene.render.film_transparent = False
     scene.render.use_compositing = False
     scene.render.use_sequencer = False

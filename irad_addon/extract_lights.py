@@ -50,13 +50,13 @@ def light_from(ob, matrix, warn):
     normalize = bool(getattr(light, "normalize", True))
     if light.type == "POINT":
         r = float(light.shadow_soft_size)
-        if not normalize and r > 0:              # Cycles: unnormalised -> no 1/(pi r^2)
-            power *= math.pi * r * r
+        if not normalize and r > 0:              # unnormalised: sphere radiance P / pi
+            power *= 4 * math.pi * r * r
         return PointLight(position, color, power, r, _soft_falloff(light))
     if light.type == "SPOT":
         r = float(light.shadow_soft_size)
         if not normalize and r > 0:
-            power *= math.pi * r * r
+            power *= 4 * math.pi * r * r
         return SpotLight(position, down, color, power, r,
                          float(light.spot_size), float(light.spot_blend), _soft_falloff(light))
     if light.type == "AREA":

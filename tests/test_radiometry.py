@@ -46,3 +46,36 @@ def test_cornell_box_default_settings_match_cycles(scene):
     ours = render_ours(s)   # the defaults users get
     assert metrics.relmse(ours, ref) < 0.02
     assert abs(metrics.relative_bias(ours, ref)) < 0.05
+
+
+@pytest.mark.parametrize("projection", ["PERSP", "ORTHO"])
+def test_camera_fit_shift_and_percentage_match_cycles(scene, projection):
+    # Non-square image at 50 %, vertical sensor fit and a lens shift: our camera rays
+    # must land where Cycles' do, or the sun-lit plane and its shadow would be offset.
+    s = scenes.plane_with_light("SUN", 64)
+    s.render.resolution_x, s.render.resolution_y, s.render.resolution_percentage = 96, 64, 50
+    cam = s.camera.data
+    cam.type = projection
+    cam.sensor_fit = 'VERTICAL'
+    cam.sensor_height = 20.0
+    cam.shift_x, cam.shift_y = 0.15, -0.1
+    cam.ortho_scale = 5.0
+    s["irad_scene_key"] = f"camera_conventions:{projection}"
+    ref = reference.cycles_reference(s, 64, direct_only=True, pixel_filter="CENTER")
+    ours = render_ours(s, max_bounces=0, aa_samples=1)
+    assert ours.shape == ref.shape == (32, 48, 3)
+    assert metrics.relmse(ours, ref) < 1e-3
+
+
+@pytest.mark.parametrize("soft, normalize", [(False, True), (True, False), (False, False)])
+def test_point_radius_options_match_cycles(scene, soft, normalize):
+    s = scenes.plane_with_light("POINT_RADIUS", 64)
+    light = next(o for o in s.objects if o.type == 'LIGHT').data
+    light.use_soft_falloff, light.normalize = soft, normalize
+    if not normalize:
+        light.energy = 150.0 / (4 * 3.14159 * light.shadow_soft_size ** 2)
+    s["irad_scene_key"] = f"point_radius:soft={soft}:normalize={normalize}"
+    ref = reference.cycles_reference(s, 256, direct_only=True)
+    ours = render_ours(s, max_bounces=0, aa_samples=16, light_samples=16)
+    assert metrics.relmse(ours, ref) < 1e-3
+    assert abs(metrics.relative_bias(ours, ref)) < 0.01
