@@ -14,6 +14,7 @@ import bpy
 import numpy as np
 
 from benchmarks import metrics, reference
+from benchmarks.scenes import light as add_light
 
 RHO = 0.8
 RES = 32
@@ -96,18 +97,6 @@ def setup(extent, plane_kind="DIFFUSE", plane_size=400.0, cam_z=30.0):
     scene.world = w
     scene["extent"] = extent
     return scene
-
-
-def add_light(scene, kind, energy, loc, rot=(0, 0, 0), **props):
-    ld = bpy.data.lights.new("light", kind)
-    ld.energy = energy
-    for k, v in props.items():
-        setattr(ld, k, v)
-    ob = bpy.data.objects.new("light", ld)
-    ob.location = loc
-    ob.rotation_euler = rot
-    scene.collection.objects.link(ob)
-    return ob
 
 
 def pixel_points(extent):
