@@ -131,6 +131,24 @@ assert rgb.max() > 0.0, "black image"
 print("RENDER OK", float(rgb.mean()))
 """
 
+# What `blender -b scene.blend -E INSTANT_RADIOSITY -f 1` does, in the bpy module: open a
+# saved .blend (our settings stored in it) and render a frame to a file.
+_BATCH = _RENDER + """
+blend = str(Path(out).with_suffix(".blend"))
+scene.irad.particles = 17
+bpy.ops.wm.save_as_mainfile(filepath=blend)
+bpy.ops.wm.read_homefile(use_empty=True)
+bpy.ops.wm.open_mainfile(filepath=blend)
+scene = bpy.context.scene
+assert scene.render.engine == "INSTANT_RADIOSITY" and scene.irad.particles == 17
+scene.render.filepath = str(Path(out).with_name("frame_"))
+scene.frame_set(1)
+bpy.ops.render.render(write_still=True)
+written = sorted(p.name for p in Path(out).parent.glob("frame_*"))
+assert written, "no frame written"
+print("BATCH OK", written)
+"""
+
 
 def _run_installed(built_zip, tmp_path, body):
     user = tmp_path / "user"
@@ -149,3 +167,7 @@ def test_install_zip_enable_disable(built_zip, tmp_path):
 
 def test_install_zip_render(built_zip, tmp_path):
     assert "RENDER OK" in _run_installed(built_zip, tmp_path, _RENDER)
+
+
+def test_saved_blend_renders_in_batch(built_zip, tmp_path):
+    assert "BATCH OK" in _run_installed(built_zip, tmp_path, _BATCH)
