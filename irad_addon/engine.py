@@ -19,7 +19,8 @@ def render_settings(scene):
     seed = irad.seed + (scene.frame_current if irad.use_animated_seed else 0)
     return render.RenderSettings(
         particles=irad.particles, max_bounces=irad.max_bounces, clamp=irad.clamp,
-        aa_samples=irad.aa_samples, light_samples=irad.light_samples, seed=seed,
+        aa_samples=irad.aa_samples, interleave=irad.interleave,
+        light_samples=irad.light_samples, seed=seed,
         variant=irad.variant, film_transparent=scene.render.film_transparent)
 
 

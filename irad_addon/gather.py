@@ -87,17 +87,19 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
     return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi
 
 
-def indirect_irradiance(frame, gb, vpls, min_distance, cancel=None, progress=None):
-    """Irradiance (S, 3) from all VPLs. Camera sample k of each pixel gathers the k-th
-    interleaved VPL subset, so anti-aliasing costs no extra shadow rays."""
+def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets,
+                        cancel=None, progress=None):
+    """Irradiance (S, 3) from the VPLs. Sample i gathers only the interleaved subset
+    subset_of_sample[i] of `subsets` (Keller & Heidrich 2001), its flux scaled up."""
     E = np.zeros((len(gb.hit), 3))
     if vpls.count == 0 or not gb.hit.any():
         return E
-    subsets = min(gb.samples, vpls.count)
     tasks = []
     for k, (subset, scale) in enumerate(vpl_subsets(vpls, subsets)):
-        idx = np.flatnonzero(gb.hit & (gb.sample % subsets == k))
-        step = max(1, PAIRS_PER_TASK // max(subset.count, 1))
+        idx = np.flatnonzero(gb.hit & (subset_of_sample == k))
+        if subset.count == 0 or len(idx) == 0:
+            continue
+        step = max(1, PAIRS_PER_TASK // subset.count)
         tasks += [(idx[a:a + step], subset, scale) for a in range(0, len(idx), step)]
     eps = frame.offset()
     stop = threading.Event()

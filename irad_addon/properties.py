@@ -32,6 +32,11 @@ class IRadSettings(bpy.types.PropertyGroup):
     aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1,
                             soft_max=64, max=4096,
                             description="Camera rays per pixel (anti-aliasing)")
+    interleave: IntProperty(name="Interleave", default=_DEFAULT.interleave, min=1, soft_max=8,
+                            max=16,
+                            description="Interleaved sampling: each pixel of a k x k tile "
+                                        "gathers a different VPL subset, then a filter that "
+                                        "respects edges merges them (1 disables)")
     light_samples: IntProperty(name="Light Samples", default=_DEFAULT.light_samples,
                                min=1, soft_max=64, max=4096,
                                description="Shadow rays per pixel to each area light, "

@@ -4,17 +4,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import gather, geometry, vpl
+from . import gather, geometry, interleaving, vpl
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
 
 @dataclass
 class RenderSettings:
-    particles: int = 512
+    particles: int = 2048
     max_bounces: int = 8
     clamp: float = 1.0           # VPL clamping distance in units of the mean VPL spacing
     aa_samples: int = 4
+    interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
     light_samples: int = 4
     seed: int = 0
     variant: str = 'CLASSIC'
@@ -89,9 +90,13 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
 
     t = time.perf_counter()
     dmin = clamp_distance(frame, vpls, settings.clamp)
+    k = max(1, settings.interleave)
     E_indirect = gather.indirect_irradiance(
-        frame, gb, vpls, dmin, check,
+        frame, gb, vpls, dmin,
+        interleaving.sample_subsets(gb.width, gb.height, gb.samples, k),
+        interleaving.subset_count(k, gb.samples), check,
         lambda f: report(0.25 + 0.75 * f, f"Gathering {vpls.count} VPLs"))
+    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
     timings["indirect"] = time.perf_counter() - t
     if check():
         raise Cancelled()

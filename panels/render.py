@@ -25,6 +25,7 @@ class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
         irad = context.scene.irad
         col = layout.column()
         col.prop(irad, "aa_samples")
+        col.prop(irad, "interleave")
         col.prop(irad, "light_samples")
         col.prop(irad, "seed")
         col.prop(irad, "use_animated_seed")

@@ -94,7 +94,8 @@ def test_cancel_stops_within_a_second_and_progress_rises(addon):
     light = sd.PointLight(np.array([0.0, 0.0, 0.5]), np.ones(3), 100.0, 0.0)
     data = synthetic.scene(sd, synthetic.closed_box(8), [0.7] * 3, lights=[light],
                            camera=synthetic.camera(sd, size=256))
-    settings = core.render.RenderSettings(particles=20000)   # tens of seconds uncancelled
+    # Tens of seconds uncancelled: every pixel gathers every VPL.
+    settings = core.render.RenderSettings(particles=20000, interleave=1)
     fractions = []
     started = time.perf_counter()
     cancel_at = [None]
