@@ -55,33 +55,41 @@ def vpl_subsets(vpls, subsets):
 def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distance2,
                          tracer, eps):
     """Irradiance at points P from VPLs: sum_j flux_j/pi cos_x cos_y / max(d^2, dmin^2) V.
-    The VPL emits with a cosine lobe (Keller 1997, eq. 5). float32 and flat indices
-    keep the numpy work per pair below Embree's own cost."""
+    The VPL emits with a cosine lobe (Keller 1997, eq. 5).
+
+    Every pairwise dot product is one small matrix product (n.(y - x) = n.y - n.x),
+    so numpy makes a handful of passes over the (points x VPLs) arrays; coordinates
+    are taken relative to the chunk's centre to keep float32 exact enough."""
     f32 = np.float32
-    Pf = P.astype(f32)
-    Nf, Gf = N.astype(f32), G.astype(f32)
-    Vp, Vn = vpl_position.astype(f32), vpl_normal.astype(f32)
-    dx = Vp[None, :, 0] - Pf[:, None, 0]
-    dy = Vp[None, :, 1] - Pf[:, None, 1]
-    dz = Vp[None, :, 2] - Pf[:, None, 2]
-    dist2 = np.maximum(dx * dx + dy * dy + dz * dz, f32(1e-30))
-    inv = 1.0 / np.sqrt(dist2)
-    cos_x = (dx * Nf[:, None, 0] + dy * Nf[:, None, 1] + dz * Nf[:, None, 2]) * inv
-    cos_y = (dx * Vn[None, :, 0] + dy * Vn[None, :, 1] + dz * Vn[None, :, 2]) * -inv
-    above = dx * Gf[:, None, 0] + dy * Gf[:, None, 1] + dz * Gf[:, None, 2]
+    centre = P.mean(0)
+    X, Y = (P - centre).astype(f32), (vpl_position - centre).astype(f32)
+    Nf, Gf, Vn = N.astype(f32), G.astype(f32), vpl_normal.astype(f32)
+    # n_x . d, -n_y . d and g_x . d, with d = y - x, as (points, VPLs) arrays.
+    cos_x = Nf @ Y.T - np.einsum('ij,ij->i', Nf, X)[:, None]
+    cos_y = X @ Vn.T - np.einsum('ij,ij->i', Vn, Y)[None, :]
+    above = Gf @ Y.T - np.einsum('ij,ij->i', Gf, X)[:, None]
+    dist2 = np.einsum('ij,ij->i', X, X)[:, None] + np.einsum('ij,ij->i', Y, Y)[None, :]
+    dist2 -= 2 * (X @ Y.T)
+    np.maximum(dist2, f32(1e-30), out=dist2)
     valid = (cos_x > 0) & (cos_y > 0) & (above > 0)
-    weight = np.where(valid, cos_x * cos_y / np.maximum(dist2, f32(min_distance2)), f32(0))
+    # cos_x cos_y / d^2 with the un-normalised dots, then the clamped 1 / d^2.
+    weight = cos_x * cos_y
+    weight /= dist2
+    weight /= np.maximum(dist2, f32(min_distance2))
+    weight[~valid] = 0
     pairs = np.flatnonzero(valid)
     if len(pairs):
+        # Pairs are sorted by point: repeat each point's row instead of gathering it.
+        per_point = valid.sum(1)
+        light = pairs % Y.shape[0]
+        origin = np.repeat((P + G * eps).astype(f32), per_point, axis=0)
         # Unnormalised directions: the segment is t in [0, 1), shortened at the VPL's
         # end by the offset (more at grazing angles) so its own surface does not block it.
-        direction = np.empty((len(pairs), 3), f32)
-        direction[:, 0] = dx.ravel()[pairs]
-        direction[:, 1] = dy.ravel()[pairs]
-        direction[:, 2] = dz.ravel()[pairs]
-        origin = (Pf + Gf * f32(eps))[pairs // dx.shape[1]]
-        tfar = f32(1 - 1e-5) - f32(2 * eps) * inv.ravel()[pairs] / np.maximum(
-            cos_y.ravel()[pairs], f32(1e-2))
+        direction = np.take(vpl_position.astype(f32), light, axis=0)
+        direction -= origin
+        d = np.sqrt(dist2.ravel()[pairs])
+        cos_vpl = cos_y.ravel()[pairs] / d
+        tfar = f32(1 - 1e-5) - f32(2 * eps) / (d * np.maximum(cos_vpl, f32(1e-2)))
         blocked = tracer.occluded(origin, direction, tfar, threads=False)
         weight.ravel()[pairs[blocked]] = 0
     return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi
