@@ -46,11 +46,12 @@ def camera_rays(cam, pixel_x, pixel_y):
     return origins, directions, cos_axis
 
 
-def pixel_samples(width, height, samples, rng):
-    """Continuous pixel coordinates for `samples` rays per pixel: the pixel centre for
-    one sample, stratified jitter over the pixel (a box filter) for more.
-    Returns (pixel_x, pixel_y, pixel_index, sample_index), sample-major."""
-    ys, xs = np.mgrid[0:height, 0:width]
+def pixel_samples(width, rows, samples, rng):
+    """Continuous pixel coordinates for `samples` rays per pixel of image rows
+    rows = (first, stop): the pixel centre for one sample, stratified jitter over the
+    pixel (a box filter) for more. Returns (pixel_x, pixel_y, pixel_index within the
+    rows, sample_index), sample-major."""
+    ys, xs = np.mgrid[rows[0]:rows[1], 0:width]
     xs = xs.ravel().astype(np.float64)
     ys = ys.ravel().astype(np.float64)
     count = xs.size

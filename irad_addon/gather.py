@@ -9,7 +9,7 @@ from . import rays, sampling
 
 # Pixel-VPL pairs per gather task: bounds the float32 temporaries (~10 arrays of
 # this many elements per thread) while keeping each Embree call large.
-PAIRS_PER_TASK = 1 << 20
+PAIRS_PER_TASK = 1 << 18
 
 
 def light_sample_pattern(count, points, rng):

@@ -17,10 +17,11 @@ def subset_count(interleave, samples):
     return max(1, interleave) ** 2 * max(1, samples)
 
 
-def sample_subsets(width, height, samples, interleave):
-    """Subset index of every G-buffer sample (sample-major, as gbuffer.pixel_samples)."""
+def sample_subsets(width, rows, samples, interleave):
+    """Subset index of every G-buffer sample of image rows (first, stop), sample-major
+    as camera.pixel_samples; tiles are anchored to the whole image."""
     k = max(1, interleave)
-    y, x = np.mgrid[0:height, 0:width]
+    y, x = np.mgrid[rows[0]:rows[1], 0:width]
     tile = ((x % k) + k * (y % k)).ravel()
     return (tile[None, :] * samples + np.arange(samples)[:, None]).ravel()
 

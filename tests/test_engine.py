@@ -97,7 +97,6 @@ def test_cancel_stops_within_a_second_and_progress_rises(addon):
     # Tens of seconds uncancelled: every pixel gathers every VPL.
     settings = core.render.RenderSettings(particles=20000, interleave=1)
     fractions = []
-    started = time.perf_counter()
     cancel_at = [None]
 
     def progress(fraction, message):
@@ -111,4 +110,3 @@ def test_cancel_stops_within_a_second_and_progress_rises(addon):
     assert cancel_at[0] is not None
     assert time.perf_counter() - cancel_at[0] < 1.0
     assert fractions == sorted(fractions)
-    assert time.perf_counter() - started < 10

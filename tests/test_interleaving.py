@@ -12,7 +12,7 @@ def il(addon):
 
 def test_every_window_sees_every_subset_equally(il):
     k, samples, w, h = 4, 3, 20, 12
-    subsets = il.sample_subsets(w, h, samples, k).reshape(samples, h, w)
+    subsets = il.sample_subsets(w, (0, h), samples, k).reshape(samples, h, w)
     assert set(np.unique(subsets)) == set(range(il.subset_count(k, samples)))
     offsets = il.window_offsets(k)
     for s in range(samples):
