@@ -20,6 +20,7 @@ def render_settings(scene):
     return render.RenderSettings(
         particles=irad.particles, max_bounces=irad.max_bounces, clamp=irad.clamp,
         aa_samples=irad.aa_samples, interleave=irad.interleave,
+        bias_compensation=irad.bias_compensation,
         light_samples=irad.light_samples, seed=seed,
         variant=irad.variant, film_transparent=scene.render.film_transparent)
 

@@ -29,6 +29,10 @@ class IRadSettings(bpy.types.PropertyGroup):
                                      "of the mean VPL spacing: hides the bright spots next to "
                                      "VPLs at the cost of darker corners; the bias shrinks as "
                                      "VPLs are added (0 disables)")
+    bias_compensation: BoolProperty(
+        name="Bias Compensation", default=_DEFAULT.bias_compensation,
+        description="Restore the light that clamping removes near VPLs, with one extra ray "
+                    "per pixel sample (Kollig & Keller 2004)")
     aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1,
                             soft_max=64, max=4096,
                             description="Camera rays per pixel (anti-aliasing)")

@@ -4,7 +4,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import gather, geometry, interleaving, vpl
+from . import bias_compensation, gather, geometry, interleaving, vpl
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -16,6 +16,7 @@ class RenderSettings:
     clamp: float = 1.0           # VPL clamping distance in units of the mean VPL spacing
     aa_samples: int = 4
     interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
+    bias_compensation: bool = True   # restore the energy clamping removes (Kollig & Keller)
     light_samples: int = 4
     seed: int = 0
     variant: str = 'CLASSIC'
@@ -46,68 +47,117 @@ def clamp_distance(frame, vpls, clamp):
     return clamp * np.sqrt(area / vpls.count)
 
 
+# Camera samples per band of rows: bounds the G-buffer and gather temporaries
+# (~200 bytes a sample) so that 1920x1080 with many VPLs stays well under 2 GB.
+SAMPLES_PER_BAND = 1 << 19
+
+
+def row_bands(height, width, samples, interleave):
+    """(first, stop) row ranges covering the image, each a whole number of tiles."""
+    k = max(1, interleave)
+    rows = max(k, (SAMPLES_PER_BAND // max(1, width * samples)) // k * k)
+    return [(y, min(height, y + rows)) for y in range(0, height, rows)]
+
+
+class _Timer:
+    """Accumulates wall time per stage over the bands."""
+
+    def __init__(self):
+        self.seconds = {}
+
+    def add(self, stage, since):
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - since
+
+
 def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
                  tracer_cache=None, vpls=None) -> RenderResult:
     """Render one frame. `cancel()` is polled; `progress(fraction, message)` reports."""
     report = progress or (lambda fraction, message: None)
     check = cancel or (lambda: False)
     check_renderable(scene)
-    timings = {}
+    timer = _Timer()
     t0 = time.perf_counter()
     report(0.0, "Preparing scene")
     frame = prepare_frame(scene, tracer_cache)
-    timings["prepare"] = time.perf_counter() - t0
+    timer.add("prepare", t0)
     warnings = list(scene.warnings)
     if frame.dropped_triangles:
         warnings.append(f"Skipped {frame.dropped_triangles} degenerate triangles")
     if not frame.emitters:
         warnings.append("The scene has no light with non-zero power: the image is black "
                         "except for the background")
-    rng = np.random.default_rng(settings.seed)
 
     t = time.perf_counter()
-    report(0.02, "Tracing camera rays")
-    gb = build_gbuffer(frame, scene.camera, settings.aa_samples, rng)
-    timings["gbuffer"] = time.perf_counter() - t
-    if check():
-        raise Cancelled()
-
-    t = time.perf_counter()
-    report(0.05, "Shooting particles")
+    report(0.02, "Shooting particles")
     if vpls is None:
         vpls = vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
                               seed=settings.seed, cancel=check)
-    timings["vpls"] = time.perf_counter() - t
+    timer.add("vpls", t)
     if check():
         raise Cancelled()
 
-    t = time.perf_counter()
-    report(0.1, "Direct light")
-    E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check)
-    timings["direct"] = time.perf_counter() - t
-    if check():
-        raise Cancelled()
-
-    t = time.perf_counter()
+    cam = scene.camera
+    passes = {name: np.zeros((cam.height, cam.width, c), np.float32)
+              for name, c in PASS_CHANNELS.items()}
+    bands = row_bands(cam.height, cam.width, settings.aa_samples, settings.interleave)
     dmin = clamp_distance(frame, vpls, settings.clamp)
-    k = max(1, settings.interleave)
-    E_indirect = gather.indirect_irradiance(
-        frame, gb, vpls, dmin,
-        interleaving.sample_subsets(gb.width, gb.height, gb.samples, k),
-        interleaving.subset_count(k, gb.samples), check,
-        lambda f: report(0.25 + 0.75 * f, f"Gathering {vpls.count} VPLs"))
-    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
-    timings["indirect"] = time.perf_counter() - t
-    if check():
-        raise Cancelled()
-
-    result = RenderResult(compose_passes(gb, E_direct, E_indirect, scene.world_radiance,
-                                         settings.film_transparent), warnings=warnings)
+    for number, rows in enumerate(bands):
+        def band_progress(fraction, message):
+            report(0.05 + 0.95 * (number + fraction) / len(bands), message)
+        band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, timer)
+        for name, image in band.items():
+            passes[name][rows[0]:rows[1]] = image
+    result = RenderResult(passes, warnings=warnings)
     result.stats = {"vpls": vpls.count, "triangles": len(frame.triangles),
-                    "clamp_distance": dmin, "time": time.perf_counter() - t0,
-                    **{f"time_{k}": v for k, v in timings.items()}}
+                    "clamp_distance": dmin, "bands": len(bands),
+                    "time": time.perf_counter() - t0,
+                    **{f"time_{k}": v for k, v in timer.seconds.items()}}
     result.vpls = vpls
     return result
+
+
+def render_band(frame, vpls, settings, rows, dmin, check, report, timer):
+    """Passes for image rows (first, stop). The G-buffer reaches one tile further up
+    and down so the discontinuity buffer sees whole windows at the band's edges."""
+    cam = frame.scene.camera
+    k = max(1, settings.interleave)
+    halo = k if k > 1 else 0
+    padded = (max(0, rows[0] - halo), min(cam.height, rows[1] + halo))
+    # One generator per band and seed: the same image for a given seed and band layout.
+    rng = np.random.default_rng([settings.seed, rows[0]])
+
+    t = time.perf_counter()
+    report(0.0, "Tracing camera rays")
+    gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
+    timer.add("gbuffer", t)
+
+    t = time.perf_counter()
+    report(0.05, "Direct light")
+    E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check)
+    timer.add("direct", t)
+    if check():
+        raise Cancelled()
+
+    t = time.perf_counter()
+    subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
+    subsets = interleaving.subset_count(k, gb.samples)
+    E_indirect = gather.indirect_irradiance(
+        frame, gb, vpls, dmin, subset_of_sample, subsets, check,
+        lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"))
+    timer.add("indirect", t)
+    if settings.bias_compensation:
+        t = time.perf_counter()
+        report(0.9, "Compensating the clamp")
+        E_indirect += bias_compensation.clamp_residual_irradiance(
+            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
+        timer.add("bias_compensation", t)
+    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
+    if check():
+        raise Cancelled()
+    band = compose_passes(gb, E_direct, E_indirect, frame.scene.world_radiance,
+                          settings.film_transparent)
+    crop = slice(rows[0] - padded[0], rows[1] - padded[0])
+    return {name: image[crop] for name, image in band.items()}
 
 
 def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent):

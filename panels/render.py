@@ -31,7 +31,7 @@ class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
 
 class RENDER_PT_irad_indirect(IRadRenderPanel, bpy.types.Panel):
     bl_label = "Global Illumination"
-    properties = ("variant", "particles", "max_bounces", "clamp")
+    properties = ("variant", "particles", "max_bounces", "clamp", "bias_compensation")
 
 
 register, unregister = bpy.utils.register_classes_factory(

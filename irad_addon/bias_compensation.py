@@ -1,0 +1,44 @@
+"""Bias compensation for VPL clamping (Kollig & Keller 2004, "Illumination in the
+presence of weak singularities").
+
+Clamping replaces the geometry term G by G min(1, d^2 / b^2) for VPLs closer than b.
+The energy it removes is, in solid angle about a receiver x,
+    integral of f_x L_o(y) cos_x max(0, 1 - d^2 / b^2) dw,
+which one cosine-distributed ray per camera sample estimates as
+    rho_x L_o(y) max(0, 1 - d^2 / b^2),
+where y is the ray's hit within distance b and L_o(y) the light y reflects, itself
+computed with the (clamped) VPLs and the direct light. Only rays that hit within b
+cost anything more than the ray itself: compensation is cheap away from corners.
+"""
+import numpy as np
+
+from . import gather, sampling
+from .gbuffer import take_points, trace_surfaces
+
+
+def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample, subsets,
+                              light_samples, rng, cancel=None):
+    """Irradiance (S, 3) that, added to the clamped VPL irradiance, restores the
+    energy clamping removed (one bounce of it; deeper bounces are left clamped)."""
+    E = np.zeros((len(gb.hit), 3))
+    if clamp_distance <= 0 or vpls.count == 0:
+        return E
+    idx = np.flatnonzero(gb.hit)
+    direction = sampling.to_world(sampling.square_to_cosine_hemisphere(rng.random((len(idx), 2))),
+                                  gb.normal[idx])
+    above = np.einsum('ij,ij->i', direction, gb.geo_normal[idx]) > 0
+    idx, direction = idx[above], direction[above]
+    origin = gb.position[idx] + gb.geo_normal[idx] * frame.offset()
+    nearby = trace_surfaces(frame, origin, direction, np.full(len(idx), clamp_distance))
+    near = np.flatnonzero(nearby.hit)
+    if len(near) == 0:
+        return E
+    y = take_points(nearby, near)
+    weight = np.maximum(0.0, 1.0 - (y.distance.astype(np.float64) / clamp_distance) ** 2)
+    # Light leaving y: reflected direct and VPL light (its emission is direct light at x).
+    E_y = (gather.direct_irradiance(frame, y, light_samples, rng, cancel)
+           + gather.indirect_irradiance(frame, y, vpls, clamp_distance,
+                                        subset_of_sample[idx[near]], subsets, cancel))
+    radiance_y = y.albedo / np.pi * E_y
+    E[idx[near]] = np.pi * radiance_y * weight[:, None]
+    return E
