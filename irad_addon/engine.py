@@ -20,7 +20,8 @@ def render_settings(scene):
     return render.RenderSettings(
         particles=irad.particles, max_bounces=irad.max_bounces, clamp=irad.clamp,
         aa_samples=irad.aa_samples, interleave=irad.interleave,
-        bias_compensation=irad.bias_compensation,
+        bias_compensation=irad.bias_compensation, use_lightcuts=irad.use_lightcuts,
+        lightcut_error=irad.lightcut_error, max_cut=irad.max_cut,
         light_samples=irad.light_samples, seed=seed,
         variant=irad.variant, film_transparent=scene.render.film_transparent)
 
@@ -68,7 +69,8 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
         written = self._write(result.passes, depsgraph)
         type(self).last_render = {"passes": written, "stats": result.stats}
         stats = result.stats
-        self.update_stats("", f"VPLs {stats['vpls']} | {stats['time']:.2f} s")
+        self.update_stats("", f"VPLs {stats['vpls']} | shadow rays per pixel sample "
+                              f"{stats.get('shadow_rays_per_point', 0):.0f} | {stats['time']:.2f} s")
 
     def _fail(self, message, width, height, depsgraph):
         self.report({'ERROR'}, message)

@@ -2,10 +2,12 @@
 (shadow rays to light samples) and from the VPLs (one shadow ray per VPL)."""
 import threading
 from concurrent.futures import as_completed
+from dataclasses import dataclass
 
 import numpy as np
 
-from . import rays, sampling
+from . import light_tree, rays, sampling
+from . import lightcuts as lightcuts_module
 
 # Pixel-VPL pairs per gather task: bounds the float32 temporaries (~10 arrays of
 # this many elements per thread) while keeping each Embree call large.
@@ -95,30 +97,63 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
     return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi
 
 
-def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets,
-                        cancel=None, progress=None):
-    """Irradiance (S, 3) from the VPLs. Sample i gathers only the interleaved subset
-    subset_of_sample[i] of `subsets` (Keller & Heidrich 2001), its flux scaled up."""
-    E = np.zeros((len(gb.hit), 3))
-    if vpls.count == 0 or not gb.hit.any():
-        return E
+@dataclass
+class Lightcuts:
+    """Settings of the lightcut gather (Walter et al. 2005)."""
+    error: float = 0.02          # refine until every cluster's bound < error x estimate
+    max_cut: int = 1000          # most clusters (shadow rays) per point
+    points_per_task: int = 4096
+
+
+def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
+    """(sample indices, VPL subset, flux scale, light tree or None) per worker task."""
     tasks = []
     for k, (subset, scale) in enumerate(vpl_subsets(vpls, subsets)):
         idx = np.flatnonzero(gb.hit & (subset_of_sample == k))
         if subset.count == 0 or len(idx) == 0:
             continue
-        step = max(1, PAIRS_PER_TASK // subset.count)
-        tasks += [(idx[a:a + step], subset, scale) for a in range(0, len(idx), step)]
+        tree = None
+        if lightcuts:
+            # Built here, not in the workers: the tree's bound table is filled lazily.
+            tree = light_tree.build_light_tree(subset.position, subset.normal, subset.flux)
+            tree.bound_columns
+            step = lightcuts.points_per_task
+        else:
+            step = max(1, PAIRS_PER_TASK // subset.count)
+        tasks += [(idx[a:a + step], subset, scale, tree) for a in range(0, len(idx), step)]
+    return tasks
+
+
+def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets,
+                        cancel=None, progress=None, lightcuts=None, stats=None):
+    """Irradiance (S, 3) from the VPLs. Sample i gathers only the interleaved subset
+    subset_of_sample[i] of `subsets` (Keller & Heidrich 2001), its flux scaled up;
+    with `lightcuts` (a Lightcuts) each point gathers a cut of a light tree instead of
+    every VPL. `stats` (a dict) receives the shadow rays per point."""
+    E = np.zeros((len(gb.hit), 3))
+    if vpls.count == 0 or not gb.hit.any():
+        return E
+    tasks = _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts)
     eps = frame.offset()
     stop = threading.Event()
+    rays_per_point = np.zeros(len(gb.hit))
 
     def run(task):
-        idx, subset, scale = task
+        idx, subset, scale, tree = task
         if stop.is_set():
             return
-        E[idx] = scale * vpl_irradiance_chunk(
-            gb.position[idx], gb.normal[idx], gb.geo_normal[idx], subset.position,
-            subset.normal, subset.flux, min_distance ** 2, frame.tracer, eps)
+        P, N, G = gb.position[idx], gb.normal[idx], gb.geo_normal[idx]
+        if tree is None:
+            E[idx] = scale * vpl_irradiance_chunk(P, N, G, subset.position, subset.normal,
+                                                  subset.flux, min_distance ** 2,
+                                                  frame.tracer, eps)
+            rays_per_point[idx] = subset.count
+        else:
+            E_cut, cut_size = lightcuts_module.lightcut_irradiance(
+                P, N, G, tree, lightcuts.error, lightcuts.max_cut, min_distance ** 2,
+                frame.tracer, eps)
+            E[idx] = scale * E_cut
+            rays_per_point[idx] = cut_size
 
     # Workers only compute; progress and cancel stay on the calling (Blender) thread.
     futures = [rays.thread_pool().submit(run, t) for t in tasks]
@@ -128,4 +163,6 @@ def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
             stop.set()
         if progress:
             progress(done / len(futures))
+    if stats is not None:
+        stats["shadow_rays_per_point"] = float(rays_per_point[gb.hit].mean())
     return E

@@ -33,6 +33,18 @@ class IRadSettings(bpy.types.PropertyGroup):
         name="Bias Compensation", default=_DEFAULT.bias_compensation,
         description="Restore the light that clamping removes near VPLs, with one extra ray "
                     "per pixel sample (Kollig & Keller 2004)")
+    use_lightcuts: BoolProperty(
+        name="Lightcuts", default=_DEFAULT.use_lightcuts,
+        description="Gather a cut of a light tree per pixel instead of every VPL (Walter et "
+                    "al. 2005): cost grows slowly with the VPL count. Pays off from about "
+                    "10k VPLs per pixel sample")
+    lightcut_error: FloatProperty(
+        name="Error", default=_DEFAULT.lightcut_error, min=0.0, soft_min=0.001, soft_max=0.1,
+        max=1.0, subtype='FACTOR',
+        description="Refine each pixel's cut until every cluster's error bound is below "
+                    "this fraction of the pixel's estimate")
+    max_cut: IntProperty(name="Max Cut", default=_DEFAULT.max_cut, min=1, soft_max=10000,
+                         max=1_000_000, description="Most clusters (shadow rays) per pixel")
     aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1,
                             soft_max=64, max=4096,
                             description="Camera rays per pixel (anti-aliasing)")

@@ -17,6 +17,9 @@ class RenderSettings:
     aa_samples: int = 4
     interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
     bias_compensation: bool = True   # restore the energy clamping removes (Kollig & Keller)
+    use_lightcuts: bool = False  # gather a light-tree cut per point instead of every VPL
+    lightcut_error: float = 0.02
+    max_cut: int = 1000
     light_samples: int = 4
     seed: int = 0
     variant: str = 'CLASSIC'
@@ -59,14 +62,18 @@ def row_bands(height, width, samples, interleave):
     return [(y, min(height, y + rows)) for y in range(0, height, rows)]
 
 
-class _Timer:
-    """Accumulates wall time per stage over the bands."""
+class _Tally:
+    """Accumulates wall time per stage, and per-band averages, over the bands."""
 
     def __init__(self):
         self.seconds = {}
+        self.averages = {}
 
     def add(self, stage, since):
         self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - since
+
+    def count(self, name, value):
+        self.averages.setdefault(name, []).append(value)
 
 
 def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
@@ -75,11 +82,11 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     report = progress or (lambda fraction, message: None)
     check = cancel or (lambda: False)
     check_renderable(scene)
-    timer = _Timer()
+    tally = _Tally()
     t0 = time.perf_counter()
     report(0.0, "Preparing scene")
     frame = prepare_frame(scene, tracer_cache)
-    timer.add("prepare", t0)
+    tally.add("prepare", t0)
     warnings = list(scene.warnings)
     if frame.dropped_triangles:
         warnings.append(f"Skipped {frame.dropped_triangles} degenerate triangles")
@@ -92,7 +99,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     if vpls is None:
         vpls = vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
                               seed=settings.seed, cancel=check)
-    timer.add("vpls", t)
+    tally.add("vpls", t)
     if check():
         raise Cancelled()
 
@@ -104,19 +111,20 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     for number, rows in enumerate(bands):
         def band_progress(fraction, message):
             report(0.05 + 0.95 * (number + fraction) / len(bands), message)
-        band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, timer)
+        band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, tally)
         for name, image in band.items():
             passes[name][rows[0]:rows[1]] = image
     result = RenderResult(passes, warnings=warnings)
     result.stats = {"vpls": vpls.count, "triangles": len(frame.triangles),
                     "clamp_distance": dmin, "bands": len(bands),
                     "time": time.perf_counter() - t0,
-                    **{f"time_{k}": v for k, v in timer.seconds.items()}}
+                    **{k: float(np.mean(v)) for k, v in tally.averages.items()},
+                    **{f"time_{k}": v for k, v in tally.seconds.items()}}
     result.vpls = vpls
     return result
 
 
-def render_band(frame, vpls, settings, rows, dmin, check, report, timer):
+def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
     """Passes for image rows (first, stop). The G-buffer reaches one tile further up
     and down so the discontinuity buffer sees whole windows at the band's edges."""
     cam = frame.scene.camera
@@ -129,28 +137,33 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, timer):
     t = time.perf_counter()
     report(0.0, "Tracing camera rays")
     gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
-    timer.add("gbuffer", t)
+    tally.add("gbuffer", t)
 
     t = time.perf_counter()
     report(0.05, "Direct light")
     E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check)
-    timer.add("direct", t)
+    tally.add("direct", t)
     if check():
         raise Cancelled()
 
     t = time.perf_counter()
     subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
     subsets = interleaving.subset_count(k, gb.samples)
+    lightcuts = (gather.Lightcuts(settings.lightcut_error, settings.max_cut)
+                 if settings.use_lightcuts else None)
+    gather_stats = {}
     E_indirect = gather.indirect_irradiance(
         frame, gb, vpls, dmin, subset_of_sample, subsets, check,
-        lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"))
-    timer.add("indirect", t)
+        lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"), lightcuts,
+        gather_stats)
+    tally.count("shadow_rays_per_point", gather_stats.get("shadow_rays_per_point", 0.0))
+    tally.add("indirect", t)
     if settings.bias_compensation:
         t = time.perf_counter()
         report(0.9, "Compensating the clamp")
         E_indirect += bias_compensation.clamp_residual_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
-        timer.add("bias_compensation", t)
+        tally.add("bias_compensation", t)
     E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
     if check():
         raise Cancelled()

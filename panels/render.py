@@ -34,5 +34,18 @@ class RENDER_PT_irad_indirect(IRadRenderPanel, bpy.types.Panel):
     properties = ("variant", "particles", "max_bounces", "clamp", "bias_compensation")
 
 
+class RENDER_PT_irad_lightcuts(IRadRenderPanel, bpy.types.Panel):
+    bl_label = "Lightcuts"
+    bl_parent_id = "RENDER_PT_irad_indirect"
+    properties = ("lightcut_error", "max_cut")
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.irad, "use_lightcuts", text="")
+
+    def draw(self, context):
+        self.layout.active = context.scene.irad.use_lightcuts
+        super().draw(context)
+
+
 register, unregister = bpy.utils.register_classes_factory(
-    (RENDER_PT_irad_sampling, RENDER_PT_irad_indirect))
+    (RENDER_PT_irad_sampling, RENDER_PT_irad_indirect, RENDER_PT_irad_lightcuts))

@@ -143,3 +143,20 @@ def test_cluster_bounds_hold_for_every_vpl(core):
         cos_y = np.maximum(-(d * vpls.normal[members]).sum(1), 0) / np.sqrt(d2)
         largest = tree.intensity[k] / np.pi * (cos_x * cos_y / np.maximum(d2, dmin2)).max()
         assert largest <= b * (1 + 1e-5), (p, k)
+
+
+def test_lightcuts_in_the_renderer_match_the_exhaustive_gather(addon):
+    # The whole frame through render_frame: the lightcut image agrees with the exhaustive
+    # one and traces far fewer shadow rays per pixel.
+    core = addon.irad_addon
+    sd = core.scene_data
+    light = sd.PointLight(np.array([0.2, 0.1, 0.6]), np.ones(3), 100.0, 0.0)
+    data = synthetic.scene(sd, synthetic.closed_box(4), [0.6] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=24, lens=14))
+    common = dict(particles=8000, aa_samples=1, interleave=1, seed=3)
+    full = core.render.render_frame(data, core.render.RenderSettings(**common))
+    cut = core.render.render_frame(data, core.render.RenderSettings(use_lightcuts=True, **common))
+    a, b = full.passes["IRAD Indirect"], cut.passes["IRAD Indirect"]
+    assert abs(b.mean() / a.mean() - 1) < 0.01
+    assert np.median(np.abs(b - a) / (a + 1e-3)) < 0.03
+    assert cut.stats["shadow_rays_per_point"] < full.stats["shadow_rays_per_point"] / 5
