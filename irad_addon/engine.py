@@ -23,7 +23,8 @@ def render_settings(scene):
         bias_compensation=irad.bias_compensation, use_lightcuts=irad.use_lightcuts,
         lightcut_error=irad.lightcut_error, max_cut=irad.max_cut,
         light_samples=irad.light_samples, seed=seed,
-        variant=irad.variant, film_transparent=scene.render.film_transparent)
+        variant=irad.variant, sequence=irad.sequence,
+        film_transparent=scene.render.film_transparent)
 
 
 class InstantRadiosityEngine(bpy.types.RenderEngine):

@@ -57,6 +57,14 @@ class IRadSettings(bpy.types.PropertyGroup):
                                min=1, soft_max=64, max=4096,
                                description="Shadow rays per pixel to each area light, "
                                            "emissive mesh and the world (soft shadows)")
+    sequence: EnumProperty(
+        name="Sequence", default=_DEFAULT.sequence,
+        items=[('HALTON', "Halton", "Scrambled Halton sequence (Keller 1997)"),
+               ('HAMMERSLEY', "Hammersley", "Hammersley points: evenly spaced in the first "
+                                            "dimension, Halton in the others"),
+               ('JITTERED', "Jittered Hammersley", "Hammersley with the first dimension "
+                                                   "jittered in its stratum (Keller 1997)")],
+        description="Low-discrepancy sequence the particles are drawn from")
     seed: IntProperty(name="Seed", default=_DEFAULT.seed, min=0,
                       description="Randomisation of the sample sequences")
     use_animated_seed: BoolProperty(name="Animated Seed", default=False,

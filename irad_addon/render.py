@@ -23,6 +23,7 @@ class RenderSettings:
     light_samples: int = 4
     seed: int = 0
     variant: str = 'CLASSIC'
+    sequence: str = 'HALTON'     # particle sequence: sampling.SEQUENCES
     film_transparent: bool = False
 
 
@@ -98,7 +99,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     report(0.02, "Shooting particles")
     if vpls is None:
         vpls = vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
-                              seed=settings.seed, cancel=check)
+                              seed=settings.seed, cancel=check, sequence=settings.sequence)
     tally.add("vpls", t)
     if check():
         raise Cancelled()

@@ -69,6 +69,27 @@ def hammersley(count, dims, seed=0):
     return out
 
 
+SEQUENCES = ('HALTON', 'HAMMERSLEY', 'JITTERED')
+
+
+def particle_points(sequence, count, dims, seed):
+    """`count` points in [0,1)^dims for one light's particles (Keller 1997 sec. 3):
+    HALTON, scrambled Halton; HAMMERSLEY, i/count in the first dimension (needs the
+    count up front); JITTERED, Hammersley with the first dimension jittered inside its
+    stratum (Keller's jittered low-discrepancy sampling)."""
+    if sequence == 'HALTON':
+        return halton(count, dims, seed=seed + 1, start=1)
+    rng = np.random.default_rng(seed)
+    out = np.empty((count, dims))
+    jitter = rng.random(count) if sequence == 'JITTERED' else 0.5
+    out[:, 0] = (np.arange(count) + jitter) / count
+    if dims > 1:
+        out[:, 1:] = halton(count, dims - 1, seed=seed + 1, start=1)
+    if sequence == 'HAMMERSLEY':
+        out[:, 0] = (out[:, 0] + rng.random()) % 1.0   # Cranley-Patterson in dimension 0
+    return out
+
+
 def cranley_patterson(points, seed):
     """Toroidal shift of every dimension by one random offset (Cranley & Patterson 1976)."""
     shift = np.random.default_rng(seed).random(points.shape[-1])

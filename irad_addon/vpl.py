@@ -58,13 +58,15 @@ def russian_roulette_survival(albedo):
     return np.clip(albedo.mean(1), 0.0, 1.0)
 
 
-def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None):
-    """Shoot `particles` light paths and return their diffuse hits as VPLs."""
+def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HALTON'):
+    """Shoot `particles` light paths and return their diffuse hits as VPLs. Each
+    light's particles get their own block of the low-discrepancy `sequence`."""
     if max_bounces < 1 or not frame.emitters or len(frame.triangles) == 0:
         return VPLs.empty()
     dims = _EMIT_DIMS + _BOUNCE_DIMS * max_bounces
     counts = particles_per_emitter(frame.emitters, particles)
-    points = sampling.halton(int(counts.sum()), dims, seed=seed + 1, start=1)
+    points = np.concatenate([sampling.particle_points(sequence, int(n), dims, seed + 7919 * i)
+                             for i, n in enumerate(counts)])
     origin, direction, flux = emit_particles(frame.emitters, counts, points)
     path = np.arange(len(origin))
     eps = frame.offset()

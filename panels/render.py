@@ -26,7 +26,8 @@ class IRadRenderPanel:
 
 class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
     bl_label = "Sampling"
-    properties = ("aa_samples", "interleave", "light_samples", "seed", "use_animated_seed")
+    properties = ("aa_samples", "interleave", "light_samples", "sequence", "seed",
+                  "use_animated_seed")
 
 
 class RENDER_PT_irad_indirect(IRadRenderPanel, bpy.types.Panel):

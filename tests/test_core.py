@@ -141,3 +141,16 @@ def test_bias_compensation_restores_what_the_clamp_removes(core):
     lost = unclamped - clamped
     assert lost > 0.005
     assert abs(unclamped - compensated) < 0.3 * lost
+
+
+@pytest.mark.parametrize("sequence", ["HALTON", "HAMMERSLEY", "JITTERED"])
+def test_every_particle_sequence_converges_in_the_furnace(core, sequence):
+    points = core.sampling.particle_points(sequence, 1024, 4, seed=5)
+    assert points.min() >= 0 and points.max() < 1
+    counts = np.bincount((points[:, 0] * 8).astype(int), minlength=8)
+    assert (counts == 128).all()   # the first dimension is stratified for all three
+    data = synthetic.scene(core.scene_data, synthetic.closed_box(4), [0.5] * 3,
+                           emission=(1, 1, 1), camera=synthetic.camera(core.scene_data, size=16))
+    image = render(core, data, particles=32768, max_bounces=200, clamp=0.0, aa_samples=1,
+                   interleave=1, light_samples=64, sequence=sequence).passes["Combined"]
+    assert image[..., :3].mean() == pytest.approx(2.0, rel=0.01)
