@@ -7,6 +7,7 @@ import numpy as np
 from . import extract, render
 from .frame import InvalidScene
 from .rays import RayTracerCache
+from .temporal import VplCache
 
 # Extra passes we always write; Depth, Normal and Albedo are added beside them.
 PASSES = [(name, channels) for name, channels in render.PASS_CHANNELS.items()
@@ -23,7 +24,7 @@ def render_settings(scene):
         bias_compensation=irad.bias_compensation, use_lightcuts=irad.use_lightcuts,
         lightcut_error=irad.lightcut_error, max_cut=irad.max_cut,
         light_samples=irad.light_samples, seed=seed,
-        variant=irad.variant, sequence=irad.sequence,
+        variant=irad.variant, sequence=irad.sequence, temporal_reuse=irad.temporal_reuse,
         film_transparent=scene.render.film_transparent)
 
 
@@ -36,6 +37,8 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
     # One BVH cache per engine class: frames of an animation with unchanged geometry
     # reuse the Embree scene instead of rebuilding it.
     tracer_cache = RayTracerCache()
+    # Camera fly-throughs reuse the VPLs while lights and geometry stay the same.
+    vpl_cache = VplCache()
     # What the last render wrote (pass names, stats): for scripts, the demo and tests.
     last_render = {}
 
@@ -54,7 +57,8 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, message)
             result = render.render_frame(
                 data, render_settings(scene), cancel=self.test_break,
-                progress=self._progress, tracer_cache=self.tracer_cache)
+                progress=self._progress, tracer_cache=self.tracer_cache,
+                vpl_cache=self.vpl_cache)
         except render.Cancelled:
             return
         except InvalidScene as error:

@@ -105,6 +105,16 @@ class Lightcuts:
     points_per_task: int = 4096
 
 
+def subset_light_tree(vpls, subsets, k, subset):
+    """The light tree of interleaved subset k, built once per VPL set (vpls.derived)."""
+    key = ("light_tree", subsets, k)
+    if key not in vpls.derived:
+        tree = light_tree.build_light_tree(subset.position, subset.normal, subset.flux)
+        tree.bound_columns   # filled lazily: fill it here, not in the worker threads
+        vpls.derived[key] = tree
+    return vpls.derived[key]
+
+
 def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
     """(sample indices, VPL subset, flux scale, light tree or None) per worker task."""
     tasks = []
@@ -114,9 +124,7 @@ def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
             continue
         tree = None
         if lightcuts:
-            # Built here, not in the workers: the tree's bound table is filled lazily.
-            tree = light_tree.build_light_tree(subset.position, subset.normal, subset.flux)
-            tree.bound_columns
+            tree = subset_light_tree(vpls, subsets, k, subset)
             step = lightcuts.points_per_task
         else:
             step = max(1, PAIRS_PER_TASK // subset.count)

@@ -65,6 +65,11 @@ class IRadSettings(bpy.types.PropertyGroup):
                ('JITTERED', "Jittered Hammersley", "Hammersley with the first dimension "
                                                    "jittered in its stratum (Keller 1997)")],
         description="Low-discrepancy sequence the particles are drawn from")
+    temporal_reuse: BoolProperty(
+        name="Reuse VPLs Across Frames", default=_DEFAULT.temporal_reuse,
+        description="While lights, geometry and these settings stay the same (a camera "
+                    "fly-through), render every frame with the same VPLs: faster, and no "
+                    "flicker (Keller 1997)")
     seed: IntProperty(name="Seed", default=_DEFAULT.seed, min=0,
                       description="Randomisation of the sample sequences")
     use_animated_seed: BoolProperty(name="Animated Seed", default=False,

@@ -4,7 +4,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import bias_compensation, gather, geometry, interleaving, vpl
+from . import bias_compensation, gather, geometry, interleaving, temporal, vpl
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -25,6 +25,7 @@ class RenderSettings:
     variant: str = 'CLASSIC'
     sequence: str = 'HALTON'     # particle sequence: sampling.SEQUENCES
     film_transparent: bool = False
+    temporal_reuse: bool = True  # reuse the last frame's VPLs while lights and geometry stay
 
 
 @dataclass
@@ -78,7 +79,7 @@ class _Tally:
 
 
 def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
-                 tracer_cache=None, vpls=None) -> RenderResult:
+                 tracer_cache=None, vpls=None, vpl_cache=None) -> RenderResult:
     """Render one frame. `cancel()` is polled; `progress(fraction, message)` reports."""
     report = progress or (lambda fraction, message: None)
     check = cancel or (lambda: False)
@@ -97,9 +98,14 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
 
     t = time.perf_counter()
     report(0.02, "Shooting particles")
+    reuse = vpl_cache is not None and settings.temporal_reuse
+    if vpls is None and reuse:
+        vpls = vpl_cache.lookup(scene, settings)
     if vpls is None:
         vpls = vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
                               seed=settings.seed, cancel=check, sequence=settings.sequence)
+        if reuse:
+            vpl_cache.store(scene, settings, vpls)
     tally.add("vpls", t)
     if check():
         raise Cancelled()

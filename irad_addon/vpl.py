@@ -1,6 +1,6 @@
 """Classic Instant Radiosity (Keller 1997, sec. 2): particles leave the lights in
 proportion to their power and leave a virtual point light at every diffuse bounce."""
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,6 +17,9 @@ class VPLs:
     normal: np.ndarray     # float64 (M, 3), unit, on the side the light arrived from
     flux: np.ndarray       # float64 (M, 3): power the VPL re-emits [W], albedo applied
     bounce: np.ndarray     # int32 (M,): 1 for the first diffuse hit
+    # Structures derived from these VPLs (interleaved subsets, light trees), built once
+    # per VPL set and shared by every band and every frame that reuses the set.
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def count(self):

@@ -32,7 +32,8 @@ class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
 
 class RENDER_PT_irad_indirect(IRadRenderPanel, bpy.types.Panel):
     bl_label = "Global Illumination"
-    properties = ("variant", "particles", "max_bounces", "clamp", "bias_compensation")
+    properties = ("variant", "particles", "max_bounces", "clamp", "bias_compensation",
+                  "temporal_reuse")
 
 
 class RENDER_PT_irad_lightcuts(IRadRenderPanel, bpy.types.Panel):
