@@ -115,6 +115,16 @@ def subset_light_tree(vpls, subsets, k, subset):
     return vpls.derived[key]
 
 
+def facing_points(vpls, points):
+    """VPLs whose emitting side faces at least part of the box around `points`: the
+    others light none of them (cos_y <= 0 at every corner) and cost no work."""
+    lo, hi = points.min(0), points.max(0)
+    corners = np.array([[(lo, hi)[(c >> a) & 1][a] for a in range(3)] for c in range(8)])
+    reach = np.einsum('mk,ck->mc', vpls.normal, corners) - np.einsum(
+        'mk,mk->m', vpls.normal, vpls.position)[:, None]
+    return reach.max(1) > 0
+
+
 def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
     """(sample indices, VPL subset, flux scale, light tree or None) per worker task."""
     tasks = []
@@ -127,6 +137,9 @@ def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
             tree = subset_light_tree(vpls, subsets, k, subset)
             step = lightcuts.points_per_task
         else:
+            subset = subset.subset(facing_points(subset, gb.position[idx]))
+            if subset.count == 0:
+                continue
             step = max(1, PAIRS_PER_TASK // subset.count)
         tasks += [(idx[a:a + step], subset, scale, tree) for a in range(0, len(idx), step)]
     return tasks

@@ -58,3 +58,15 @@ def test_interleaving_keeps_the_mean(addon):
         particles=4096, aa_samples=1, interleave=4, seed=2)).passes["IRAD Indirect"]
     assert inter.mean() == pytest.approx(full.mean(), rel=0.02)
     assert np.abs(inter - full).mean() < 0.1 * full.mean()
+
+
+def test_vpls_facing_away_from_every_visible_point_are_not_gathered(addon):
+    gather = addon.irad_addon.gather
+    vpl = addon.irad_addon.vpl
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    position = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 1.0], [3.0, 0.5, 0.0], [-0.5, 0.5, 0.0]])
+    normal = np.array([[0, 0, -1.0], [0, 0, 1.0], [1.0, 0, 0], [1.0, 0, 0]])
+    vpls = vpl.VPLs(position, normal, np.ones((4, 3)), np.ones(4, np.int32))
+    # Faces down onto the points: kept; faces up, or away beyond x = 3: culled; the
+    # last faces +x from x = -0.5 towards the points: kept.
+    assert gather.facing_points(vpls, points).tolist() == [True, False, False, True]
