@@ -21,7 +21,7 @@ class IRadSettings(bpy.types.PropertyGroup):
                            description="Particles shot from the lights; every diffuse bounce "
                                        "leaves a virtual point light (VPL)")
     max_bounces: IntProperty(name="Max Bounces", default=_DEFAULT.max_bounces, min=0,
-                             soft_max=32, max=1024,
+                             soft_max=64, max=1024,
                              description="Most indirect bounces a particle makes; 0 renders "
                                          "direct light only")
     clamp: FloatProperty(name="Clamp", default=_DEFAULT.clamp, min=0.0, soft_max=4.0, max=100.0,

@@ -12,7 +12,7 @@ from .gbuffer import build_gbuffer
 @dataclass
 class RenderSettings:
     particles: int = 2048
-    max_bounces: int = 8
+    max_bounces: int = 32        # Russian roulette ends most paths long before this
     clamp: float = 1.0           # VPL clamping distance in units of the mean VPL spacing
     aa_samples: int = 4
     interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
