@@ -1,8 +1,8 @@
 # Instant Radiosity for Blender: registration only; the engine lives in irad_addon.
-from .irad_addon import engine, properties
+from .irad_addon import engine, overlay, preferences, properties
 from . import operators, panels
 
-_modules = (properties, engine, operators, panels)
+_modules = (preferences, properties, engine, overlay, operators, panels)
 
 
 def register():

@@ -2,6 +2,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
+from . import overlay
 from .render import RenderSettings
 
 # One source of truth for defaults: the core's RenderSettings.
@@ -74,6 +75,29 @@ class IRadSettings(bpy.types.PropertyGroup):
                       description="Randomisation of the sample sequences")
     use_animated_seed: BoolProperty(name="Animated Seed", default=False,
                                     description="Use a different seed for every frame")
+
+    # ---- Bake bounce lights (irad_addon/bake.py, operators/, panels/sidebar.py) ----
+    light_budget: IntProperty(name="Light Budget", default=64, min=1, max=4096,
+                              soft_min=1, soft_max=1024,
+                              description="Most lights a bake creates: above it, VPLs are "
+                                          "clustered with a light tree (Lightcuts) into this "
+                                          "many lights. EEVEE shows at most 4096 lights")
+    show_vpl_overlay: BoolProperty(name="Show VPLs", default=False,
+                                   update=lambda self, context: overlay.update(self, context),
+                                   description="Draw the last computed virtual point lights "
+                                               "in the 3D Viewport, coloured by flux")
+    bake_vpl_count: IntProperty(name="VPLs", default=0, min=0,
+                                description="VPLs traced by the last compute or bake")
+    bake_light_count: IntProperty(name="Lights", default=0, min=0,
+                                  description="Bounce lights created by the last bake")
+    bake_seconds: FloatProperty(name="Bake Time", default=0.0, min=0.0, unit='TIME_ABSOLUTE',
+                                description="Seconds the last compute or bake took")
+    bake_relative_error: FloatProperty(name="Estimated Error", default=0.0, min=0.0,
+                                       subtype='FACTOR',
+                                       description="Flux-weighted spread of the light clusters "
+                                                   "relative to the scene size (0: one light "
+                                                   "per VPL)")
+    # ---- end of bake properties ----
 
 
 def register():

@@ -1,14 +1,9 @@
 """Operators (bl_idname under irad.): thin wrappers over irad_addon."""
 import bpy
 
-classes = ()
+from . import bake, vpls
+
+classes = vpls.classes + bake.classes
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

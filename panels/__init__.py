@@ -1,9 +1,10 @@
-"""UI panels (thin): Render Properties when our engine is active."""
+"""UI panels (thin): Render Properties when our engine is active, and the 3D Viewport
+sidebar for baking bounce lights."""
 import bpy
 
-from . import render
+from . import render, sidebar
 
-_modules = (render,)
+_modules = (render, sidebar)
 
 
 def register():
