@@ -4,7 +4,7 @@ import traceback
 import bpy
 import numpy as np
 
-from . import extract, render
+from . import extract, preferences, render
 from .frame import InvalidScene
 from .rays import RayTracerCache
 from .temporal import VplCache
@@ -57,8 +57,7 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, message)
             result = render.render_frame(
                 data, render_settings(scene), cancel=self.test_break,
-                progress=self._progress, tracer_cache=self.tracer_cache,
-                vpl_cache=self.vpl_cache)
+                progress=self._progress, **self._caches())
         except render.Cancelled:
             return
         except InvalidScene as error:
@@ -76,6 +75,12 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
         stats = result.stats
         self.update_stats("", f"VPLs {stats['vpls']} | shadow rays per pixel sample "
                               f"{stats.get('shadow_rays_per_point', 0):.0f} | {stats['time']:.2f} s")
+
+    def _caches(self):
+        """The BVH and VPL caches, unless the user switched caching off."""
+        if not preferences.use_cache():
+            return {}
+        return {"tracer_cache": self.tracer_cache, "vpl_cache": self.vpl_cache}
 
     def _fail(self, message, width, height, depsgraph):
         self.report({'ERROR'}, message)

@@ -4,6 +4,8 @@ import os
 import bpy
 from bpy.props import BoolProperty, IntProperty
 
+from . import rays
+
 # Preferences belong to the add-on's root package (bl_ext.<repo>.instant_radiosity),
 # not to this sub-package.
 ADDON_PACKAGE = __package__.rpartition('.')[0]
@@ -13,6 +15,7 @@ class IRadPreferences(bpy.types.AddonPreferences):
     bl_idname = ADDON_PACKAGE
 
     threads: IntProperty(name="Threads", default=0, min=0, soft_max=64, max=1024,
+                         update=lambda self, context: rays.set_worker_count(self.threads),
                          description="Threads for ray tracing and gathering; 0 uses one per "
                                      "CPU core")
     use_cache: BoolProperty(name="Reuse Ray-Tracing Data", default=True,
@@ -52,4 +55,10 @@ def use_cache():
 classes = (IRadPreferences,)
 
 
-register, unregister = bpy.utils.register_classes_factory(classes)
+_register, unregister = bpy.utils.register_classes_factory(classes)
+
+
+def register():
+    _register()
+    prefs = get()
+    rays.set_worker_count(prefs.threads if prefs is not None else 0)

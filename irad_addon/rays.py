@@ -13,10 +13,20 @@ import numpy as np
 # Rays per thread task: big enough to amortise the Python call, small enough to balance.
 _TASK_RAYS = 1 << 16
 _pool = None
+_workers = None   # the user's thread count (preferences); None = one per CPU core
 
 
 def worker_count():
-    return max(1, os.cpu_count() or 1)
+    return _workers or max(1, os.cpu_count() or 1)
+
+
+def set_worker_count(count):
+    """Use `count` worker threads from now on (0 or None: one per CPU core)."""
+    global _pool, _workers
+    _workers = count or None
+    if _pool is not None and _pool._max_workers != worker_count():
+        _pool.shutdown(wait=True)
+        _pool = None
 
 
 def thread_pool():

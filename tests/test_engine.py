@@ -110,3 +110,21 @@ def test_cancel_stops_within_a_second_and_progress_rises(addon):
     assert cancel_at[0] is not None
     assert time.perf_counter() - cancel_at[0] < 1.0
     assert fractions == sorted(fractions)
+
+
+def test_cache_preference_switches_bvh_reuse_off(scene, addon):
+    small_scene(scene)
+    prefs = bpy.context.preferences.addons[addon.__name__].preferences
+    cache = engine_class().tracer_cache
+    before = cache.builds
+    reference.render_image(scene)
+    builds = cache.builds
+    assert builds == before + 1              # a new scene: one BVH built, kept in the cache
+    reference.render_image(scene)            # same geometry: the cached BVH is reused
+    assert cache.builds == builds
+    prefs.use_cache = False
+    try:
+        reference.render_image(scene)
+        assert cache.builds == builds        # the engine did not use (or fill) the cache
+    finally:
+        prefs.use_cache = True

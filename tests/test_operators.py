@@ -272,8 +272,12 @@ def test_preferences_register_under_the_extension(addon, core):
     prefs.threads = 1
     try:
         assert core.preferences.thread_count() == 1
+        # The ray tracer's pool follows the preference.
+        assert core.rays.worker_count() == 1
+        assert core.rays.thread_pool()._max_workers == 1
     finally:
         prefs.threads = 0
+    assert core.rays.worker_count() == max(1, os.cpu_count() or 1)
     assert core.preferences.use_cache() is True
 
 
