@@ -114,6 +114,7 @@ def test_cancel_stops_within_a_second_and_progress_rises(addon):
 
 def test_cache_preference_switches_bvh_reuse_off(scene, addon):
     small_scene(scene)
+    scene.objects["cube"].location.x += 0.123   # geometry no earlier test has rendered
     prefs = bpy.context.preferences.addons[addon.__name__].preferences
     cache = engine_class().tracer_cache
     before = cache.builds
