@@ -267,6 +267,7 @@ class _Extraction:
         self.object_holdout = []
         self.material_ids = {}    # material key -> global index
         self.albedo = []
+        self.mirror = []
         self.emission = []
         self.material_names = []
         self.lights = []
@@ -284,14 +285,15 @@ class _Extraction:
         if idx is None:
             if mat is None:
                 albedo = np.array(DEFAULT_ALBEDO, np.float32)
-                emission = np.zeros(3, np.float32)
+                emission = mirror = np.zeros(3, np.float32)
                 name = DEFAULT_MATERIAL_NAME
             else:
-                albedo, emission = self.reader.material(mat)
+                albedo, emission, mirror = self.reader.material(mat)
                 name = mat.name
             idx = self.material_ids[key] = len(self.albedo)
             self.albedo.append(albedo)
             self.emission.append(emission)
+            self.mirror.append(mirror)
             self.material_names.append(name)
         return idx
 
@@ -387,8 +389,10 @@ class _Extraction:
     def materials(self):
         if not self.albedo:
             return Materials(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32), [])
+        mirror = np.array(self.mirror, np.float32)
         return Materials(np.array(self.albedo, np.float32),
-                         np.array(self.emission, np.float32), list(self.material_names))
+                         np.array(self.emission, np.float32), list(self.material_names),
+                         mirror if mirror.any() else None)
 
 
 def extract_scene(depsgraph, scene=None, include_baked=False, stats=None) -> SceneData:

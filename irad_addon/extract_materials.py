@@ -18,6 +18,8 @@ _OTHER_BSDFS = {
     "ShaderNodeBsdfToon", "ShaderNodeBsdfTranslucent", "ShaderNodeSubsurfaceScattering",
     "ShaderNodeBsdfHair", "ShaderNodeBsdfHairPrincipled", "ShaderNodeBsdfVelvet",
 }
+# Roughness up to which a metallic or glossy BSDF is a perfect planar mirror.
+MIRROR_ROUGHNESS = 1e-3
 # Closures that reflect nothing (black for the diffuse model).
 _BLACK_CLOSURES = {"ShaderNodeBsdfTransparent", "ShaderNodeHoldout",
                    "ShaderNodeBsdfRayPortal"}
@@ -127,6 +129,10 @@ class MaterialReader:
                           f"using its unlinked value {socket.default_value:g}")
         return float(socket.default_value)
 
+    def is_mirror(self, node, owner):
+        return (self.value(node, "Metallic", owner) >= 1.0 - MIRROR_ROUGHNESS
+                and self.value(node, "Roughness", owner) <= MIRROR_ROUGHNESS)
+
     # ----- closures
     def closure(self, socket, fallback, owner, depth=0):
         """Evaluate the closure feeding ``socket``.
@@ -141,8 +147,15 @@ class MaterialReader:
             return zero, zero, "none"
         node = src.node
         kind = node.bl_idname
+        if kind == "ShaderNodeBsdfPrincipled" and self.is_mirror(node, owner):
+            # Fully metallic, roughness 0: a mirror reflecting its base colour.
+            return self.color(node, "Base Color", fallback, owner), zero, "mirror"
+        # Blender 4.0+ creates Glossy BSDFs as ShaderNodeBsdfAnisotropic.
+        if (kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")
+                and self.value(node, "Roughness", owner) <= MIRROR_ROUGHNESS):
+            return self.color(node, "Color", fallback, owner), zero, "mirror"
         if kind == "ShaderNodeBsdfPrincipled":
-            # Metallic / transmission are ignored here: mirror-like materials come later.
+            # Partly metallic or rough: approximated as diffuse with its base colour.
             albedo = self.color(node, "Base Color", fallback, owner)
             emission = (self.color(node, "Emission Color", None, owner)
                         * self.value(node, "Emission Strength", owner))
@@ -180,7 +193,12 @@ class MaterialReader:
             if kb == "other" and ka in ("diffuse", "black"):
                 return aa, emission, ka
             albedo = np.clip(wa * aa + wb * ab, 0, 1).astype(np.float32)
-            kinds = {ka, kb}
+            kinds = {ka, kb} - {"none"}
+            if kinds == {"mirror"}:
+                return albedo, emission, "mirror"
+            if "mirror" in kinds:
+                self.warn(f"{owner}: a mirror mixed with another shader is approximated "
+                          f"as diffuse")
             out = ("diffuse" if "diffuse" in kinds else
                    "other" if "other" in kinds else "black")
             return albedo, emission, out
@@ -197,20 +215,24 @@ class MaterialReader:
 
     # ----- datablocks
     def material(self, mat):
-        """(albedo (3,), emission (3,)) of a bpy Material."""
+        """(albedo (3,), emission (3,), mirror reflectance (3,)) of a bpy Material."""
         owner = f"Material '{mat.name}'"
         fallback = tuple(mat.diffuse_color)[:3]
+        zero = np.zeros(3, np.float32)
         tree = mat.node_tree
         if tree is None:                      # legacy material without nodes
-            return np.array(fallback, np.float32), np.zeros(3, np.float32)
+            return np.array(fallback, np.float32), zero, zero
         output = _active_output(tree, "ShaderNodeOutputMaterial")
         if output is None:
-            return np.zeros(3, np.float32), np.zeros(3, np.float32)
+            return zero, zero, zero
         albedo, emission, kind = self.closure(output.inputs["Surface"], fallback, owner)
         if kind == "other":
             self.warn(f"{owner}: non-diffuse BSDF approximated as diffuse")
-        return (np.clip(albedo, 0, 1).astype(np.float32),
-                np.maximum(emission, 0).astype(np.float32))
+        albedo = np.clip(albedo, 0, 1).astype(np.float32)
+        emission = np.maximum(emission, 0).astype(np.float32)
+        if kind == "mirror":
+            return zero, emission, albedo
+        return albedo, emission, zero
 
     def world(self, world):
         """Constant background radiance (3,) of a bpy World."""

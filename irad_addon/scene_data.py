@@ -32,6 +32,9 @@ class Materials:
     albedo: np.ndarray           # float32 (M, 3): diffuse reflectance, linear RGB in [0, 1]
     emission: np.ndarray         # float32 (M, 3): emitted radiance [W / (m^2 sr)], two-sided
     names: list = field(default_factory=list)
+    # float32 (M, 3): reflectance of perfect (roughness 0) mirrors, zeros for diffuse
+    # materials; None when no material is a mirror.
+    mirror: np.ndarray | None = None
 
 
 @dataclass

@@ -92,6 +92,7 @@ def material(name, kind="Principled BSDF", **inputs):
             tree.nodes.remove(n)
     node = tree.nodes.new({"Principled BSDF": "ShaderNodeBsdfPrincipled",
                            "Diffuse": "ShaderNodeBsdfDiffuse",
+                           "Glossy": "ShaderNodeBsdfGlossy",
                            "Emission": "ShaderNodeEmission"}[kind])
     for k, v in inputs.items():
         node.inputs[k].default_value = v
@@ -290,6 +291,33 @@ def test_smooth_and_flat_shading(ex, scene):
 
 
 # ------------------------------------------------------------------------ materials
+
+def test_mirror_materials(ex, scene):
+    # Roughness-0 metals and glossy BSDFs are perfect mirrors; anything rougher or
+    # partly metallic stays diffuse; a scene without mirrors reports none.
+    cases = [("metal", "Principled BSDF", dict(Metallic=1.0, Roughness=0.0,
+                                                **{"Base Color": (0.9, 0.8, 0.7, 1)}),
+              (0.9, 0.8, 0.7)),
+             ("glossy", "Glossy", dict(Roughness=0.0, Color=(0.5, 0.6, 0.7, 1)), (0.5, 0.6, 0.7)),
+             ("half", "Principled BSDF", dict(Metallic=0.5, Roughness=0.0), None),
+             ("rough", "Principled BSDF", dict(Metallic=1.0, Roughness=0.3), None)]
+    obs = []
+    for i, (name, kind, inputs, _) in enumerate(cases):
+        ob = add_cube(name, location=(3 * i, 0, 0))
+        assign(ob, material(name, kind, **inputs)[0])
+        obs.append(ob)
+    sd = extract_render(ex, scene)
+    mats = sd.materials
+    for name, _, _, mirror in cases:
+        m = mats.names.index(name)
+        if mirror is None:
+            assert not mats.mirror[m].any() and mats.albedo[m].any()
+        else:
+            assert np.allclose(mats.mirror[m], mirror) and not mats.albedo[m].any()
+    for ob in obs[:2]:
+        bpy.data.objects.remove(ob)
+    assert extract_render(ex, scene).materials.mirror is None
+
 
 def test_materials(ex, scene):
     principled, _ = material("Principled", **{"Base Color": (0.2, 0.4, 0.6, 1)})
