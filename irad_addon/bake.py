@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import bake_math, extract, light_tree, preferences, render, vpl
+from . import bake_math, extract, light_tree, preferences, render, variants, vpl
 from .engine import render_settings
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .rays import RayTracerCache
@@ -62,10 +62,8 @@ def prepare(scene, depsgraph):
 
 
 def trace_vpls(frame, settings, cancel=None):
-    """The one call site that turns a prepared frame into VPLs for the chosen variant
-    (the renderer's dispatch belongs here once variants other than CLASSIC exist)."""
-    return vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
-                          seed=settings.seed, cancel=cancel, sequence=settings.sequence)
+    """The one call site that turns a prepared frame into VPLs for the chosen variant."""
+    return variants.vpls_for_frame(frame, settings, cancel=cancel)[0]
 
 
 def trace(scene, frame, cancel=None):

@@ -11,6 +11,17 @@ _DEFAULT = RenderSettings()
 VARIANTS = [
     ('CLASSIC', "Classic", "Instant Radiosity (Keller 1997): particles from the lights, "
                            "a virtual point light at every diffuse bounce"),
+    ('BIDIRECTIONAL', "Bidirectional", "Bidirectional Instant Radiosity (Segovia et al. 2006): "
+                                       "VPLs also where the camera's paths land, resampled "
+                                       "by what they bring to the image (light in another "
+                                       "room)"),
+    ('METROPOLIS', "Metropolis", "Metropolis Instant Radiosity (Segovia et al. 2007): VPLs "
+                                 "distributed by the power they bring to the camera"),
+    ('INCREMENTAL', "Incremental", "Incremental Instant Radiosity (Laine et al. 2007): VPLs "
+                                   "persist across animation frames; only invalid ones are "
+                                   "replaced (moving point and spot lights)"),
+    ('AUTO', "Auto", "A quick pilot pass picks the variant for this scene; the choice and "
+                     "why are shown in the render stats"),
 ]
 
 

@@ -1,0 +1,143 @@
+"""Bidirectional Instant Radiosity (Segovia, Iehl, Mitanchey, Peroche 2006).
+
+Candidates come from both ends:
+- light-path VPLs: classic IR from half the particles (Keller 1997);
+- reverse VPLs: the second vertex y of length-two camera paths (a pilot camera point
+  x_k, a cosine-distributed direction, the first hit). Each carries the light y
+  reflects: rho(y) E(y) / (M p(y)) (Segovia 2006, sec. 3.2), with E(y) its irradiance
+  from the lights and the light-path VPLs (shadow rays) and p(y) its area density,
+  averaged over all pilot points: p(y) = 1/K sum_k cos_k cos_y / (pi d^2) V.
+Both kinds estimate the same last bounce, so they are blended with weights that sum to
+one at every surface point (a partition of unity keeps the sum unbiased, Veach 1997
+sec. 9.2): reverse VPLs take over where the camera paths are dense. Then N' VPLs are
+drawn with probability proportional to the power each brings to the camera and
+rescaled by 1 / (N' P_j) (sampling-resampling, Segovia 2006 sec. 3.3), so the
+expected flux equals the candidates'.
+"""
+import numpy as np
+
+from . import geometry, gather, sampling, vpl
+from .gbuffer import GBuffer
+from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
+
+PILOT_CAMERA_POINTS = 256
+# Reverse VPLs yield to light-path VPLs where their density M p(y) drops below this
+# share of the light-path VPLs' mean density N_L / area.
+LIGHT_DENSITY_SHARE = 0.3
+# Share of the resampling drawn in proportion to the candidates' own power (defensive
+# mixture: a VPL no pilot point sees still has a chance, so no pixel loses its light).
+DEFENSIVE = 0.1
+# Light paths traced per particle of the budget (for E(y) and as candidates).
+LIGHT_PATHS_PER_PARTICLE = 4
+# Reverse vertices per VPL of the budget.
+REVERSE_SHARE = 2.0
+# Light samples per reverse VPL for its direct light (cheap: M points, not pixels).
+REVERSE_LIGHT_SAMPLES = 16
+
+
+def surface_buffer(position, normal, geo_normal, albedo):
+    """A G-buffer made of arbitrary surface points, for the gather functions."""
+    n = len(position)
+    return GBuffer(width=n, height=1, row_start=0, samples=1, pixel=np.arange(n),
+                   sample=np.zeros(n, np.int64), hit=np.ones(n, bool), position=position,
+                   normal=normal, geo_normal=geo_normal, albedo=albedo,
+                   emission=np.zeros((n, 3)), depth=np.zeros(n),
+                   object_index=np.zeros(n, np.int32), holdout=np.zeros(n, bool))
+
+
+def reverse_vertices(frame, pilot, per_point, rng):
+    """Second vertices of length-two camera paths: from every pilot point, `per_point`
+    cosine-distributed directions about its geometric normal, traced to the first hit.
+    Returns the hit surface buffer, the source pilot index and cos_k cos_y / d^2 of the
+    own segment (its density term, known without a shadow ray)."""
+    source = np.repeat(np.arange(pilot.count), per_point)
+    local = sampling.square_to_cosine_hemisphere(rng.random((len(source), 2)))
+    direction = sampling.to_world(local, pilot.geo_normal[source])
+    origin = pilot.position[source] + pilot.geo_normal[source] * frame.offset()
+    hits = frame.tracer.intersect(origin, direction)
+    keep = hits.hit
+    tri, bary = hits.triangle[keep], hits.barycentric[keep]
+    incoming = direction[keep]
+    position = geometry.surface_points(frame.triangles, tri, bary)
+    geo = geometry.face_forward(frame.geo_normals[tri], -incoming)
+    shading = geometry.face_forward(
+        geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
+    dist2 = np.maximum(((position - pilot.position[source[keep]]) ** 2).sum(1), 1e-30)
+    own = local[keep, 2] * np.abs(np.einsum('ij,ij->i', incoming, geo)) / dist2
+    buffer = surface_buffer(position, shading, geo, frame.albedo[tri])
+    return buffer, source[keep], own
+
+
+def incident_irradiance(frame, points, light_vpls, settings, rng):
+    """E(y): direct light plus the light-path VPLs' indirect light, with shadow rays."""
+    from .render import clamp_distance  # render dispatches to us: import at call time
+    dmin = clamp_distance(frame, light_vpls, settings.clamp)
+    samples = max(settings.light_samples, REVERSE_LIGHT_SAMPLES)
+    return (gather.direct_irradiance(frame, points, samples, rng)
+            + gather.indirect_irradiance(frame, points, light_vpls, dmin,
+                                         np.zeros(len(points.hit), np.int64), 1))
+
+
+def resample(flux, importance, count, rng, defensive=DEFENSIVE):
+    """Systematic resampling of `count` draws with P_j = (1 - a) q_j / sum q +
+    a |flux_j| / sum |flux| (Segovia 2006 sec. 3.3, plus a defensive share a).
+    Returns the drawn indices (unique) and their flux rescaled by n_j / (count P_j),
+    whose expectation is the candidates' flux."""
+    power = luminance(flux)
+    p = defensive * power / power.sum()
+    if importance.sum() > 0:
+        p += (1 - defensive) * importance / importance.sum()
+    else:
+        p = power / power.sum()
+    cdf = np.cumsum(p)
+    cdf /= cdf[-1]
+    draws = np.searchsorted(cdf, (rng.random() + np.arange(count)) / count, side='right')
+    index, times = np.unique(np.minimum(draws, len(p) - 1), return_counts=True)
+    return index, flux[index] * (times / (count * p[index]))[:, None]
+
+
+def place_bidirectional(frame, gb, settings, rng):
+    """(VPLs, info) for bidirectional IR with `settings.particles` particles' worth of
+    VPLs: half from the lights, as many reverse VPLs, N' = all candidates redrawn."""
+    pilot = camera_pilot(gb, PILOT_CAMERA_POINTS, rng)
+    # Extra light paths cost M x N_L shadow rays, not pixels x N: they make E(y) smooth.
+    light = vpl.trace_vpls(frame, LIGHT_PATHS_PER_PARTICLE * settings.particles,
+                           settings.max_bounces, seed=settings.seed)
+    budget = max(1, light.count // LIGHT_PATHS_PER_PARTICLE)   # classic IR's VPL count
+    if pilot.count == 0 or light.count == 0:
+        return light, {'reverse_vpls': 0, 'candidates': light.count}
+    per_point = max(1, -(-int(REVERSE_SHARE * budget) // pilot.count))
+    rev, source, own = reverse_vertices(frame, pilot, per_point, rng)
+    M = pilot.count * per_point
+    points = np.concatenate([light.position, rev.position])
+    normals = np.concatenate([light.normal, rev.geo_normal])
+    geo_pilot = camera_pilot_with_geo_normals(pilot)
+    transfer = pair_transfer(frame, geo_pilot, points, normals)
+    transfer[source, light.count + np.arange(rev.width)] = own
+    density = transfer.mean(0) / np.pi                 # p(y), per unit area
+    area = float(geometry.triangle_areas(frame.triangles).sum())
+    light_density = LIGHT_DENSITY_SHARE * light.count / max(area, 1e-30)
+    reverse_weight = M * density / (M * density + light_density)
+    E = incident_irradiance(frame, rev, light, settings, rng)
+    reverse_flux = rev.albedo * E / (M * density[light.count:] + light_density)[:, None]
+    flux = np.concatenate([light.flux * (1 - reverse_weight[:light.count, None]), reverse_flux])
+    candidates = vpl.VPLs(points, np.concatenate([light.normal, rev.normal]), flux,
+                          np.concatenate([light.bounce, np.ones(rev.width, np.int32)]))
+    useful = luminance(flux) > 0
+    candidates, transfer = candidates.subset(useful), transfer[:, useful]
+    if candidates.count == 0:
+        return vpl.VPLs.empty(), {'reverse_vpls': int(rev.width), 'candidates': 0}
+    from .render import clamp_distance
+    cap = 1.0 / max(clamp_distance(frame, candidates, settings.clamp), 1e-3 * frame.extent) ** 2
+    importance = camera_importance(pilot, np.minimum(transfer, cap), candidates.flux)
+    index, flux = resample(candidates.flux, importance, budget, rng)
+    chosen = candidates.subset(index)
+    chosen.flux = flux
+    return chosen, {'reverse_vpls': int(rev.width), 'candidates': int(candidates.count)}
+
+
+def camera_pilot_with_geo_normals(pilot):
+    """The pilot with geometric normals: the density of a cosine-sampled direction is
+    measured against the normal it was sampled about."""
+    from dataclasses import replace
+    return replace(pilot, normal=pilot.geo_normal)
