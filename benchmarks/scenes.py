@@ -184,11 +184,11 @@ def cornell_box(light="AREA", resolution=128):
     return scene
 
 
-def mirror_box(resolution=96):
+def mirror_box(resolution=96, light="AREA"):
     """Cornell box whose back wall is a perfect mirror."""
-    scene = _scene("mirror_box", resolution)
+    scene = _scene("mirror_box" if light == "AREA" else "mirror_box:%s" % light, resolution)
     _cornell(scene, back_mat=mirror("mirror"))
-    _cornell_light(scene, "AREA")
+    _cornell_light(scene, light)
     return scene
 
 

@@ -4,7 +4,7 @@ import traceback
 import bpy
 import numpy as np
 
-from . import extract, preferences, render
+from . import extract, preferences, render, variants
 from .frame import InvalidScene
 from .rays import RayTracerCache
 from .temporal import VplCache
@@ -42,6 +42,11 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
     # What the last render wrote (pass names, stats): for scripts, the demo and tests.
     last_render = {}
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Lives for one render job: the frames of an animation share it (incremental IR).
+        self.variant_state = variants.VariantState()
+
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
         for name, channels in PASSES:
@@ -57,7 +62,7 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, message)
             result = render.render_frame(
                 data, render_settings(scene), cancel=self.test_break,
-                progress=self._progress, **self._caches())
+                progress=self._progress, variant_state=self.variant_state, **self._caches())
         except render.Cancelled:
             return
         except InvalidScene as error:
@@ -73,8 +78,9 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
         written = self._write(result.passes, depsgraph)
         type(self).last_render = {"passes": written, "stats": result.stats}
         stats = result.stats
-        self.update_stats("", f"VPLs {stats['vpls']} | shadow rays per pixel sample "
-                              f"{stats.get('shadow_rays_per_point', 0):.0f} | {stats['time']:.2f} s")
+        self.update_stats("", f"{stats['variant_reason']} | VPLs {stats['vpls']} | shadow "
+                              f"rays per pixel sample {stats.get('shadow_rays_per_point', 0):.0f}"
+                              f" | {stats['time']:.2f} s")
 
     def _caches(self):
         """The BVH and VPL caches, unless the user switched caching off."""

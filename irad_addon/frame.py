@@ -27,6 +27,14 @@ class Frame:
     emitters: list
     bounds: tuple                # (centre, radius) of the geometry's bounding sphere
     dropped_triangles: int = 0
+    mirror: np.ndarray | None = None   # float64 (T, 3) mirror reflectance; None: no mirrors
+
+    @property
+    def is_mirror(self):
+        """bool (T,): triangles of perfect mirrors."""
+        if self.mirror is None:
+            return np.zeros(len(self.triangles), bool)
+        return self.mirror.max(1) > 0
 
     @property
     def extent(self):
@@ -65,8 +73,12 @@ def prepare_frame(scene: SceneData, tracer_cache: RayTracerCache | None = None) 
     emission = emission_table[material]
     emitters = lights.build_emitters(scene.lights, tris, emission,
                                      scene.world_radiance, bounds, tracer.offset_scale())
+    mirror = None
+    if mats.mirror is not None and np.any(mats.mirror):
+        mirror = np.clip(_clean_colors(mats.mirror, len(albedo_table)), 0.0, 1.0)[material]
+        mirror = mirror if mirror.any() else None
     return Frame(scene, tris, corner, geo, albedo_table[material], emission,
-                 object_index, holdout, tracer, emitters, bounds, int((~keep).sum()))
+                 object_index, holdout, tracer, emitters, bounds, int((~keep).sum()), mirror)
 
 
 def check_renderable(scene: SceneData):

@@ -24,6 +24,8 @@ class GBuffer:
     depth: np.ndarray            # float64 (S,): Z depth along the view axis, 1e10 on misses
     object_index: np.ndarray     # int32 (S,), -1 on misses
     holdout: np.ndarray          # bool (S,)
+    # float64 (S, 3): product of the mirror reflectances on the way; None: no mirrors seen
+    throughput: np.ndarray | None = None
 
     def pixel_mean(self, values):
         """Average per-sample values (S, C) into (height, width, C) pixels (a box filter)."""
@@ -76,14 +78,50 @@ def build_gbuffer(frame, cam, samples, rng, rows=None):
     far = cam.clip_end / cos_axis
     s = trace_surfaces(frame, origins + directions * near[:, None], directions,
                        np.maximum(far - near, 0))
-    depth = np.where(s.hit, (s.distance + near) * cos_axis, 1e10)
+    length = s.distance + near
+    throughput = None
+    if frame.mirror is not None:
+        throughput, length = follow_mirrors(frame, s, directions, length)
+    depth = np.where(s.hit, length * cos_axis, 1e10)
     obj = np.full(len(s.hit), -1, np.int32)
     holdout = np.zeros(len(s.hit), bool)
     obj[s.hit] = frame.object_index[s.triangle[s.hit]]
     holdout[s.hit] = frame.holdout[s.triangle[s.hit]]
     return GBuffer(cam.width, rows[1] - rows[0], rows[0], samples, pixel, sample, s.hit,
                    s.position, s.normal, s.geo_normal, s.albedo, s.emission, depth, obj,
-                   holdout)
+                   holdout, throughput)
+
+
+# Mirror reflections a camera ray follows before it is cut off (black).
+MAX_MIRROR_BOUNCES = 8
+
+
+def follow_mirrors(frame, points, directions, length):
+    """Continue rays that hit perfect mirrors along their reflection (Keller 1997
+    sec. 4.2 handles the light side; the camera side is a specular chain): `points`
+    are updated in place to the first non-mirror hit. Returns the throughput (n, 3)
+    (product of mirror reflectances) and the path length (n,)."""
+    throughput = np.ones((len(points.hit), 3))
+    length = np.asarray(length, np.float64).copy()
+    directions = np.array(directions, np.float64)
+    is_mirror = frame.is_mirror
+    for _ in range(MAX_MIRROR_BOUNCES + 1):
+        on_mirror = np.flatnonzero(points.hit & is_mirror[points.triangle])
+        if len(on_mirror) == 0:
+            break
+        if _ == MAX_MIRROR_BOUNCES:   # still between mirrors: give up, black
+            throughput[on_mirror] = 0.0
+            break
+        n = points.geo_normal[on_mirror]
+        d = directions[on_mirror]
+        reflected = d - 2 * np.einsum('ij,ij->i', d, n)[:, None] * n
+        throughput[on_mirror] *= frame.mirror[points.triangle[on_mirror]]
+        after = trace_surfaces(frame, points.position[on_mirror] + n * frame.offset(), reflected)
+        length[on_mirror] += after.distance
+        for name in SurfacePoints.__dataclass_fields__:
+            getattr(points, name)[on_mirror] = getattr(after, name)
+        directions[on_mirror] = reflected
+    return throughput, length
 
 
 def take_points(points, index):

@@ -4,7 +4,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import bias_compensation, gather, geometry, interleaving, temporal, vpl
+from . import bias_compensation, gather, geometry, interleaving, mirrors, temporal, variants
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -79,7 +79,8 @@ class _Tally:
 
 
 def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
-                 tracer_cache=None, vpls=None, vpl_cache=None) -> RenderResult:
+                 tracer_cache=None, vpls=None, vpl_cache=None,
+                 variant_state=None) -> RenderResult:
     """Render one frame. `cancel()` is polled; `progress(fraction, message)` reports."""
     report = progress or (lambda fraction, message: None)
     check = cancel or (lambda: False)
@@ -101,9 +102,9 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     reuse = vpl_cache is not None and settings.temporal_reuse
     if vpls is None and reuse:
         vpls = vpl_cache.lookup(scene, settings)
+    variant_info = {}
     if vpls is None:
-        vpls = vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
-                              seed=settings.seed, cancel=check, sequence=settings.sequence)
+        vpls, variant_info = variants.vpls_for_frame(frame, settings, variant_state, check)
         if reuse:
             vpl_cache.store(scene, settings, vpls)
     tally.add("vpls", t)
@@ -124,6 +125,8 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     result = RenderResult(passes, warnings=warnings)
     result.stats = {"vpls": vpls.count, "triangles": len(frame.triangles),
                     "clamp_distance": dmin, "bands": len(bands),
+                    "variant": variant_info.get("variant", settings.variant),
+                    "variant_reason": variant_info.get("reason", "VPLs of an earlier frame"),
                     "time": time.perf_counter() - t0,
                     **{k: float(np.mean(v)) for k, v in tally.averages.items()},
                     **{f"time_{k}": v for k, v in tally.seconds.items()}}
@@ -165,6 +168,14 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
         gather_stats)
     tally.count("shadow_rays_per_point", gather_stats.get("shadow_rays_per_point", 0.0))
     tally.add("indirect", t)
+    if frame.mirror is not None:   # skipped entirely for scenes without mirrors
+        t = time.perf_counter()
+        report(0.85, "Light through mirrors")
+        mirrored_direct, mirrored_indirect = mirrors.mirrored_irradiance(
+            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
+        E_direct += mirrored_direct
+        E_indirect += mirrored_indirect
+        tally.add("mirrors", t)
     if settings.bias_compensation:
         t = time.perf_counter()
         report(0.9, "Compensating the clamp")
@@ -188,6 +199,9 @@ def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent):
     indirect = np.where(visible[:, None], brdf * E_indirect, 0.0)
     background = ~gb.hit & (not film_transparent)
     direct[background] = np.maximum(np.nan_to_num(np.asarray(world_radiance, np.float64)), 0.0)
+    if gb.throughput is not None:   # seen in mirrors
+        direct *= gb.throughput
+        indirect *= gb.throughput
     alpha = (visible | background).astype(np.float64)
     combined = np.concatenate([direct + indirect, alpha[:, None]], -1)
     depth = gb.depth[:, None]

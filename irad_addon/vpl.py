@@ -99,9 +99,19 @@ def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HAL
         new_dir = sampling.to_world(local, shading[survive])
         above = np.einsum('ij,ij->i', new_dir, geo[survive]) > 0
         idx = np.flatnonzero(survive)[above]
-        path = path[idx]
-        flux = vpl_flux[idx] / q[idx, None]
-        direction = new_dir[above]
+        new_flux = vpl_flux[idx] / q[idx, None]
+        if frame.mirror is not None:
+            # Perfect mirrors leave no VPL: the particle reflects, its flux times the
+            # mirror's reflectance (Keller 1997 sec. 4.2).
+            mirror = np.flatnonzero(frame.is_mirror[tri])
+            d = incoming[mirror]
+            reflected = d - 2 * np.einsum('ij,ij->i', d, geo[mirror])[:, None] * geo[mirror]
+            new_dir = np.concatenate([new_dir[above], reflected])
+            new_flux = np.concatenate([new_flux, flux[mirror] * frame.mirror[tri[mirror]]])
+            idx = np.concatenate([idx, mirror])
+        else:
+            new_dir = new_dir[above]
+        path, flux, direction = path[idx], new_flux, new_dir
         origin = position[idx] + geo[idx] * eps
     if not found:
         return VPLs.empty()

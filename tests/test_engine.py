@@ -129,3 +129,18 @@ def test_cache_preference_switches_bvh_reuse_off(scene, addon):
         assert cache.builds == builds        # the engine did not use (or fill) the cache
     finally:
         prefs.use_cache = True
+
+
+@pytest.mark.parametrize("variant", ["BIDIRECTIONAL", "METROPOLIS", "INCREMENTAL", "AUTO"])
+def test_every_variant_renders_through_the_engine(scene, variant):
+    s = scenes.two_rooms(24)
+    s.render.engine = ENGINE
+    s.irad.variant, s.irad.particles, s.irad.aa_samples = variant, 64, 1
+    image = reference.render_image(s)
+    stats = engine_class().last_render["stats"]
+    assert np.isfinite(image).all() and image.max() > 0 and stats["vpls"] > 0
+    if variant == "AUTO":   # light in the other room: a camera-aware variant, and why
+        assert stats["variant"] in ("BIDIRECTIONAL", "METROPOLIS"), stats["variant_reason"]
+    else:
+        assert stats["variant"] == variant
+    assert stats["variant_reason"]
