@@ -22,8 +22,9 @@ def light_sample_pattern(count, points, rng):
     return (base[:, None, :] + shift[None]) % 1.0
 
 
-def direct_irradiance(frame, gb, light_samples, rng, cancel=None):
-    """Irradiance (S, 3) from every emitter, with shadow rays."""
+def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
+    """Irradiance (S, 3) from every emitter, with shadow rays. `visible(origins,
+    directions, tfar)` replaces the plain shadow-ray test (mirrors.py uses it)."""
     E = np.zeros((len(gb.hit), 3))
     idx = np.flatnonzero(gb.hit)
     if len(idx) == 0:
@@ -31,6 +32,8 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None):
     P, N, G = gb.position[idx], gb.normal[idx], gb.geo_normal[idx]
     eps = frame.offset()
     origins = P + G * eps
+    if visible is None:
+        visible = lambda o, d, t: ~frame.tracer.occluded(o, d, t)
     for emitter in frame.emitters:
         count = 1 if emitter.delta else light_samples
         pattern = light_sample_pattern(count, len(idx), rng)
@@ -42,8 +45,7 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None):
             ok = (e.max(1) > 0) & (np.einsum('ij,ij->i', direction, G) > 0)
             sel = np.flatnonzero(ok)
             tfar = dist[sel] * (1 - 1e-5) - 2 * eps
-            blocked = frame.tracer.occluded(origins[sel], direction[sel], tfar)
-            lit = sel[~blocked]
+            lit = sel[visible(origins[sel], direction[sel], tfar)]
             E[idx[lit]] += e[lit] / count
     return E
 
@@ -55,7 +57,7 @@ def vpl_subsets(vpls, subsets):
 
 
 def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distance2,
-                         tracer, eps):
+                         tracer, eps, visible=None):
     """Irradiance at points P from VPLs: sum_j flux_j/pi cos_x cos_y / max(d^2, dmin^2) V.
     The VPL emits with a cosine lobe (Keller 1997, eq. 5).
 
@@ -92,7 +94,10 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
         d = np.sqrt(dist2.ravel()[pairs])
         cos_vpl = cos_y.ravel()[pairs] / d
         tfar = f32(1 - 1e-5) - f32(2 * eps) / (d * np.maximum(cos_vpl, f32(1e-2)))
-        blocked = tracer.occluded(origin, direction, tfar, threads=False)
+        if visible is None:
+            blocked = tracer.occluded(origin, direction, tfar, threads=False)
+        else:
+            blocked = ~visible(origin, direction, tfar)
         weight.ravel()[pairs[blocked]] = 0
     return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi
 
@@ -146,7 +151,7 @@ def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
 
 
 def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets,
-                        cancel=None, progress=None, lightcuts=None, stats=None):
+                        cancel=None, progress=None, lightcuts=None, stats=None, visible=None):
     """Irradiance (S, 3) from the VPLs. Sample i gathers only the interleaved subset
     subset_of_sample[i] of `subsets` (Keller & Heidrich 2001), its flux scaled up;
     with `lightcuts` (a Lightcuts) each point gathers a cut of a light tree instead of
@@ -167,7 +172,7 @@ def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
         if tree is None:
             E[idx] = scale * vpl_irradiance_chunk(P, N, G, subset.position, subset.normal,
                                                   subset.flux, min_distance ** 2,
-                                                  frame.tracer, eps)
+                                                  frame.tracer, eps, visible)
             rays_per_point[idx] = subset.count
         else:
             E_cut, cut_size = lightcuts_module.lightcut_irradiance(
