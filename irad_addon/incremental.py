@@ -21,7 +21,6 @@ import numpy as np
 
 from . import vpl
 from .lights import PointEmitter, SpotEmitter
-from .metropolis import follow_paths
 
 BUDGET_SHARE = 0.05          # new sites per frame, as a share of the target count
 QUADRATURE_DIRECTIONS = 8192
@@ -150,7 +149,7 @@ class IncrementalVPLs:
         origin = np.broadcast_to(light.position, (count, 3))
         unit = np.ones((count, 3))
         bounce_u = rng.random((count, _BOUNCE_DIMS * max_bounces))
-        vpls, owner = follow_paths(frame, origin, new_dirs, unit, bounce_u, max_bounces)
+        vpls, owner = vpl.follow_paths(frame, origin, new_dirs, unit, bounce_u, max_bounces)
         self.rays += int(vpls.count + count)
         first = np.full((count, 3), np.nan)
         is_first = vpls.bounce == 1

@@ -11,7 +11,7 @@ resampled from the bootstrap set in proportion to f, so they start near equilibr
 """
 import numpy as np
 
-from . import geometry, sampling, vpl
+from . import vpl
 from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
 
 PILOT_CAMERA_POINTS = 64
@@ -26,47 +26,6 @@ TARGET_CLAMP = 2.0
 BOOTSTRAP = 8             # uniform bootstrap paths per path of the budget
 _EMIT_DIMS = 6
 _BOUNCE_DIMS = 3
-
-
-def follow_paths(frame, origin, direction, flux, bounce_u, max_bounces):
-    """Trace particles (origin, direction, flux) through up to `max_bounces` diffuse
-    bounces (Keller 1997: a VPL at every hit, Russian roulette on the albedo, cosine
-    bounce); bounce_u (n, 3 * max_bounces) holds each path's random numbers.
-    Returns the VPLs and the index of the path each belongs to."""
-    path = np.arange(len(origin))
-    eps = frame.offset()
-    found, owner = [], []
-    for bounce in range(1, max_bounces + 1):
-        if len(path) == 0:
-            break
-        hits = frame.tracer.intersect(origin, direction)
-        keep = hits.hit
-        tri, bary = hits.triangle[keep], hits.barycentric[keep]
-        path, flux, incoming = path[keep], flux[keep], direction[keep]
-        position = geometry.surface_points(frame.triangles, tri, bary)
-        geo = geometry.face_forward(frame.geo_normals[tri], -incoming)
-        shading = geometry.face_forward(
-            geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
-        albedo = frame.albedo[tri]
-        vpl_flux = flux * albedo
-        stored = vpl_flux.max(1) > 0
-        found.append(vpl.VPLs(position[stored], shading[stored], vpl_flux[stored],
-                              np.full(int(stored.sum()), bounce, np.int32)))
-        owner.append(path[stored])
-        u = bounce_u[path, _BOUNCE_DIMS * (bounce - 1):_BOUNCE_DIMS * bounce]
-        q = vpl.russian_roulette_survival(albedo)
-        survive = u[:, 0] < q
-        new_dir = sampling.to_world(sampling.square_to_cosine_hemisphere(u[survive, 1:3]),
-                                    shading[survive])
-        above = np.einsum('ij,ij->i', new_dir, geo[survive]) > 0
-        idx = np.flatnonzero(survive)[above]
-        path, flux, direction = path[idx], vpl_flux[idx] / q[idx, None], new_dir[above]
-        origin = position[idx] + geo[idx] * eps
-    if not found:
-        return vpl.VPLs.empty(), np.zeros(0, np.int64)
-    return (vpl.VPLs(*[np.concatenate([getattr(v, f) for v in found])
-                       for f in ('position', 'normal', 'flux', 'bounce')]),
-            np.concatenate(owner))
 
 
 class PathSpace:
@@ -96,7 +55,7 @@ class PathSpace:
             origin[rows], direction[rows] = o, d
             # emit() spreads the power over len(rows) particles; one sample carries it all.
             flux[rows] = np.asarray(f) * len(rows) / self.pick[e]
-        return follow_paths(self.frame, origin, direction, flux, u[:, 1 + _EMIT_DIMS:],
+        return vpl.follow_paths(self.frame, origin, direction, flux, u[:, 1 + _EMIT_DIMS:],
                             self.max_bounces)
 
     def evaluate(self, u):

@@ -71,28 +71,38 @@ def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HAL
     points = np.concatenate([sampling.particle_points(sequence, int(n), dims, seed + 7919 * i)
                              for i, n in enumerate(counts)])
     origin, direction, flux = emit_particles(frame.emitters, counts, points)
+    return follow_paths(frame, origin, direction, flux, points[:, _EMIT_DIMS:], max_bounces,
+                        cancel)[0]
+
+
+def follow_paths(frame, origin, direction, flux, bounce_u, max_bounces, cancel=None):
+    """Trace particles (origin, direction, flux) through up to `max_bounces` bounces
+    (Keller 1997: a VPL at every diffuse hit, Russian roulette on the albedo, cosine
+    bounce; perfect mirrors reflect). bounce_u (n, 3 * max_bounces) holds each path's
+    random numbers. Returns the VPLs and the index of the path each came from."""
     path = np.arange(len(origin))
     eps = frame.offset()
-    found = []
+    found, owner = [], []
     for bounce in range(1, max_bounces + 1):
         if len(path) == 0 or (cancel and cancel()):
             break
         hits = frame.tracer.intersect(origin, direction)
         keep = hits.hit
-        tri = hits.triangle[keep]
+        tri, bary = hits.triangle[keep], hits.barycentric[keep]
         path, flux, incoming = path[keep], flux[keep], direction[keep]
-        position = geometry.surface_points(frame.triangles, tri, hits.barycentric[keep])
+        position = geometry.surface_points(frame.triangles, tri, bary)
         # Surfaces are two-sided: normals face the side the particle came from.
         geo = geometry.face_forward(frame.geo_normals[tri], -incoming)
         shading = geometry.face_forward(
-            geometry.shading_normals(frame.corner_normals, tri, hits.barycentric[keep], geo), geo)
+            geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
         albedo = frame.albedo[tri]
         vpl_flux = flux * albedo
         stored = vpl_flux.max(1) > 0
         found.append(VPLs(position[stored], shading[stored], vpl_flux[stored],
                           np.full(int(stored.sum()), bounce, np.int32)))
+        owner.append(path[stored])
         # Russian roulette, then a cosine-weighted bounce about the shading normal.
-        u = points[path, _EMIT_DIMS + _BOUNCE_DIMS * (bounce - 1):][:, :_BOUNCE_DIMS]
+        u = bounce_u[path, _BOUNCE_DIMS * (bounce - 1):_BOUNCE_DIMS * bounce]
         q = russian_roulette_survival(albedo)
         survive = u[:, 0] < q
         local = sampling.square_to_cosine_hemisphere(u[survive, 1:3])
@@ -100,20 +110,20 @@ def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HAL
         above = np.einsum('ij,ij->i', new_dir, geo[survive]) > 0
         idx = np.flatnonzero(survive)[above]
         new_flux = vpl_flux[idx] / q[idx, None]
+        new_dir = new_dir[above]
         if frame.mirror is not None:
             # Perfect mirrors leave no VPL: the particle reflects, its flux times the
             # mirror's reflectance (Keller 1997 sec. 4.2).
             mirror = np.flatnonzero(frame.is_mirror[tri])
             d = incoming[mirror]
             reflected = d - 2 * np.einsum('ij,ij->i', d, geo[mirror])[:, None] * geo[mirror]
-            new_dir = np.concatenate([new_dir[above], reflected])
+            new_dir = np.concatenate([new_dir, reflected])
             new_flux = np.concatenate([new_flux, flux[mirror] * frame.mirror[tri[mirror]]])
             idx = np.concatenate([idx, mirror])
-        else:
-            new_dir = new_dir[above]
         path, flux, direction = path[idx], new_flux, new_dir
         origin = position[idx] + geo[idx] * eps
     if not found:
-        return VPLs.empty()
-    return VPLs(*[np.concatenate([getattr(v, f) for v in found])
-                  for f in ('position', 'normal', 'flux', 'bounce')])
+        return VPLs.empty(), np.zeros(0, np.int64)
+    return (VPLs(*[np.concatenate([getattr(v, f) for v in found])
+                   for f in ('position', 'normal', 'flux', 'bounce')]),
+            np.concatenate(owner))
