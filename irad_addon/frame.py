@@ -88,3 +88,9 @@ def check_renderable(scene: SceneData):
                            "scene camera")
     if scene.camera.width < 1 or scene.camera.height < 1:
         raise InvalidScene("The render resolution is zero")
+    cam = scene.camera
+    numbers = [cam.lens, cam.sensor_width, cam.sensor_height, cam.ortho_scale, cam.shift_x,
+               cam.shift_y, cam.clip_start, cam.clip_end]
+    if not (np.isfinite(cam.matrix_world).all() and np.isfinite(numbers).all()):
+        raise InvalidScene("The camera's transform or lens settings are not finite numbers "
+                           "(NaN or infinity): fix the camera object or its drivers")
