@@ -1,0 +1,171 @@
+"""Throughput ceiling: our VPL gather against raw Embree occlusion queries on the very
+same shadow rays, both measured in one run.
+
+The gather (irad_addon.gather.indirect_irradiance, called by render.render_frame) is
+instrumented from outside: the module functions are wrapped to time the gather and
+count pixel-VPL pairs, and the frame's RayTracer.occluded is wrapped to record every
+shadow-ray batch it traces. The recorded batches are then replayed through a bare
+embreex scene built from the same triangles (no numpy work, no wrapper): once on one
+thread, once on a pool with one thread per core, as the gather uses.
+"""
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import bpy
+import numpy as np
+
+from benchmarks import scenes
+
+RESOLUTION = 96
+TARGET_RAYS = 4_000_000      # shadow rays per measured gather (~112 MB recorded)
+QUICK_TARGET_RAYS = 1_000_000
+REPEATS = 3
+# Core RenderSettings per configuration; one whose field does not exist yet is skipped.
+# A missing field set to False is fine: a feature that does not exist is off.
+CONFIGS = {"exhaustive gather": {"use_lightcuts": False}, "lightcuts": {"use_lightcuts": True}}
+
+
+class GatherProbe:
+    """Wraps the core's gather and the tracer's occlusion queries while installed."""
+
+    def __init__(self, core):
+        self.core = core
+        self.gather_seconds = []
+        self.pairs = []
+        self.recording = False
+        self.batches = []
+        self._in_gather = False
+        self._lock = threading.Lock()
+
+    def __enter__(self):
+        gather = self.core.gather
+        self._gather, self._chunk = gather.indirect_irradiance, gather.vpl_irradiance_chunk
+        probe = self
+
+        def indirect(*args, **kwargs):   # called once per image band
+            probe._in_gather = True
+            t = time.perf_counter()
+            try:
+                return probe._gather(*args, **kwargs)
+            finally:
+                probe.gather_seconds[-1] += time.perf_counter() - t
+                probe._in_gather = False
+
+        def chunk(P, N, G, vpl_position, *rest, **kwargs):
+            with probe._lock:
+                probe.pairs[-1] += len(P) * len(vpl_position)
+            return probe._chunk(P, N, G, vpl_position, *rest, **kwargs)
+
+        gather.indirect_irradiance, gather.vpl_irradiance_chunk = indirect, chunk
+        return self
+
+    def __exit__(self, *exc):
+        self.core.gather.indirect_irradiance = self._gather
+        self.core.gather.vpl_irradiance_chunk = self._chunk
+
+    def wrap_tracer(self, tracer):
+        original = type(tracer).occluded.__get__(tracer)
+
+        def occluded(origins, directions, tfar, threads=True):
+            if self.recording and self._in_gather:
+                batch = (np.array(origins, np.float32), np.array(directions, np.float32),
+                         np.broadcast_to(np.asarray(tfar, np.float32), (len(origins),)).copy())
+                with self._lock:
+                    self.batches.append(batch)
+            return original(origins, directions, tfar, threads=threads)
+
+        tracer.occluded = occluded
+
+    def render(self, data, settings, cache):
+        """One frame; its gather time and pair count are summed over all bands."""
+        self.pairs.append(0)
+        self.gather_seconds.append(0.0)
+        return self.core.render.render_frame(data, settings, tracer_cache=cache)
+
+
+def raw_embree_seconds(triangles, batches, threads):
+    """Wall time of OCCLUDED queries on the recorded batches through bare embreex."""
+    from embreex import mesh_construction, rtcore_scene
+    scene = rtcore_scene.EmbreeScene(robust=True)   # the same traversal mode as rays.py
+    mesh_construction.TriangleMesh(scene, np.ascontiguousarray(triangles, np.float32))
+    scene.run(batches[0][0][:16], batches[0][1][:16], dists=batches[0][2][:16].copy(),
+              query='OCCLUDED')   # builds the BVH lazily on the first query
+    jobs = [(o, d, t.copy()) for o, d, t in batches]
+
+    def one(job):
+        return scene.run(job[0], job[1], dists=job[2], query='OCCLUDED')
+
+    started = time.perf_counter()
+    if threads == 1:
+        blocked = [one(job) for job in jobs]
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            blocked = list(pool.map(one, jobs))
+    seconds = time.perf_counter() - started
+    return seconds, int(sum(int((b >= 0).sum()) for b in blocked))
+
+
+def measure_config(core, data, name, fields, target_rays):
+    defaults = core.render.RenderSettings()
+    missing = [k for k, v in fields.items() if not hasattr(defaults, k) and v is not False]
+    if missing:
+        return {"config": name, "skipped": missing}
+    fields = {k: v for k, v in fields.items() if hasattr(defaults, k)}
+    cache = core.rays.RayTracerCache()
+    with GatherProbe(core) as probe:
+        pilot = probe.render(data, core.render.RenderSettings(**fields, particles=256), cache)
+        pairs_per_vpl = probe.pairs[-1] / max(pilot.stats["vpls"], 1)
+        particles = max(16, int(256 * target_rays / max(probe.pairs[-1], 1)))
+        settings = core.render.RenderSettings(**fields, particles=particles)
+        probe.wrap_tracer(cache._tracer)
+        probe.recording = True
+        result = probe.render(data, settings, cache)
+        probe.recording = False
+        batches = probe.batches
+        if not batches:
+            return {"config": name, "skipped": ["the gather traced no rays through "
+                                                "gather.indirect_irradiance"]}
+        for _ in range(REPEATS):   # timed without recording
+            probe.render(data, settings, cache)
+        gather_seconds = min(probe.gather_seconds[-REPEATS:])
+        pairs = probe.pairs[-1]
+    rays = sum(len(b[0]) for b in batches)
+    triangles = cache._tracer.triangles
+    workers = core.rays.worker_count()
+    raw1 = min(raw_embree_seconds(triangles, batches, 1)[0] for _ in range(REPEATS))
+    raws = [raw_embree_seconds(triangles, batches, workers) for _ in range(REPEATS)]
+    raw_n = min(s for s, _ in raws)
+    return {"config": name, "particles": particles, "vpls": result.stats["vpls"],
+            "pixels": int(data.camera.width * data.camera.height), "pairs": int(pairs),
+            "pairs_per_vpl": pairs_per_vpl, "shadow_rays": int(rays), "batches": len(batches),
+            "blocked_fraction": raws[0][1] / max(rays, 1), "workers": workers,
+            "gather_seconds": gather_seconds, "raw_seconds_1_thread": raw1,
+            "raw_seconds": raw_n,
+            "gather_rays_per_second": rays / gather_seconds,
+            "gather_pairs_per_second": pairs / gather_seconds,
+            "raw_rays_per_second_1_thread": rays / raw1,
+            "raw_rays_per_second": rays / raw_n,
+            "ratio": raw_n / gather_seconds}
+
+
+def run(addon, quick=False):
+    core = addon.irad_addon
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = scenes.cornell_box("AREA", RESOLUTION)
+    data = core.extract.extract_scene(bpy.context.evaluated_depsgraph_get())
+    target = QUICK_TARGET_RAYS if quick else TARGET_RAYS
+    out = []
+    for name, fields in CONFIGS.items():
+        row = measure_config(core, data, name, fields, target)
+        out.append(row)
+        if "skipped" in row:
+            print(f"  throughput {name}: skipped ({row['skipped']})", flush=True)
+        else:
+            print(f"  throughput {name}: {row['shadow_rays']} rays, gather "
+                  f"{row['gather_rays_per_second'] / 1e6:.2f} Mrays/s, raw Embree "
+                  f"{row['raw_rays_per_second'] / 1e6:.2f} Mrays/s ({row['workers']} threads),"
+                  f" ratio {row['ratio']:.2f}", flush=True)
+    return {"scene": f"cornell_box AREA {RESOLUTION} x {RESOLUTION}", "cpu_count": os.cpu_count(),
+            "configs": out}
