@@ -208,7 +208,7 @@ def test_far_from_the_origin_renders_like_at_the_origin(core):
 
 @pytest.mark.xfail(strict=True, reason=(
     "A 200 m room 1e7 m away is 200 float32 ulps across: camera rays, particle hits and "
-    "shadow-ray ends round by up to 1 m (the ray offset is now 2 ulps, was 10), so the "
+    "shadow-ray ends round by up to 1 m and rays start 10 m (8 ulps) off surfaces, so the "
     "VPLs differ from those at the origin and ~10% of the pixels differ by more than 10% "
     "of the peak; tracing in a frame local to the scene (coordinates relative to its "
     "centre) would keep it exact"))
