@@ -100,13 +100,15 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     t = time.perf_counter()
     report(0.02, "Shooting particles")
     reuse = vpl_cache is not None and settings.temporal_reuse
+    if reuse:
+        setup_key = temporal.light_setup_key(scene, settings, frame.tracer.fingerprint)
     if vpls is None and reuse:
-        vpls = vpl_cache.lookup(scene, settings)
+        vpls = vpl_cache.lookup(setup_key)
     variant_info = {}
     if vpls is None:
         vpls, variant_info = variants.vpls_for_frame(frame, settings, variant_state, check)
         if reuse:
-            vpl_cache.store(scene, settings, vpls)
+            vpl_cache.store(setup_key, vpls)
     tally.add("vpls", t)
     if check():
         raise Cancelled()

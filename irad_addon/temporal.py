@@ -6,7 +6,6 @@ import hashlib
 
 import numpy as np
 
-from .rays import triangle_fingerprint
 
 # RenderSettings fields that change the VPL set.
 _VPL_SETTINGS = ("particles", "max_bounces", "seed", "variant", "sequence")
@@ -14,10 +13,11 @@ _VPL_SETTINGS = ("particles", "max_bounces", "seed", "variant", "sequence")
 _CAMERA_DEPENDENT = ("BIDIRECTIONAL", "METROPOLIS", "AUTO")
 
 
-def light_setup_key(scene, settings):
-    """A digest of everything the VPLs depend on except the camera."""
+def light_setup_key(scene, settings, geometry_key):
+    """A digest of everything the VPLs depend on except the camera; geometry_key is
+    the ray tracer's fingerprint of the triangles (hashed once per frame, there)."""
     h = hashlib.blake2b(digest_size=16)
-    h.update(triangle_fingerprint(np.ascontiguousarray(scene.mesh.triangles, np.float32)))
+    h.update(geometry_key)
     for array in (scene.mesh.material_index, scene.materials.albedo, scene.materials.emission,
                   scene.world_radiance):
         h.update(np.ascontiguousarray(array).tobytes())
@@ -37,11 +37,11 @@ class VplCache:
         self._vpls = None
         self.reused = 0
 
-    def lookup(self, scene, settings):
-        if self._key is not None and light_setup_key(scene, settings) == self._key:
+    def lookup(self, key):
+        if self._key is not None and key == self._key:
             self.reused += 1
             return self._vpls
         return None
 
-    def store(self, scene, settings, vpls):
-        self._key, self._vpls = light_setup_key(scene, settings), vpls
+    def store(self, key, vpls):
+        self._key, self._vpls = key, vpls
