@@ -4,32 +4,22 @@ Tests reach the add-on only through the `addon` fixture (the module
 `bl_ext.user_default.instant_radiosity`), never as top-level `irad_addon`:
 a second copy would hold its own classes and state.
 """
-import atexit
 import importlib.abc
-import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-ADDON_ID = "instant_radiosity"
-ADDON_MODULE = f"bl_ext.user_default.{ADDON_ID}"
-ENGINE = "INSTANT_RADIOSITY"
-
-# Must happen before `import bpy`: Blender reads it once at startup.
-assert "bpy" not in sys.modules, "bpy was imported before tests/conftest.py"
-USER_RESOURCES = tempfile.mkdtemp(prefix="irad-blender-user-")
-os.environ["BLENDER_USER_RESOURCES"] = USER_RESOURCES
-# Registered before bpy's own atexit hooks, so it runs after them (LIFO).
-atexit.register(shutil.rmtree, USER_RESOURCES, ignore_errors=True)
-
 sys.path.insert(0, str(ROOT))  # for `from benchmarks import ...`
 
+from benchmarks import addon_install  # noqa: E402
+
+# Must happen before `import bpy`: Blender reads BLENDER_USER_RESOURCES once at startup.
+assert "bpy" not in sys.modules, "bpy was imported before tests/conftest.py"
+addon_install.prepare_user_resources()
+
 import bpy  # noqa: E402
-import addon_utils  # noqa: E402
 
 
 class _BlockCheckoutImports(importlib.abc.MetaPathFinder):
@@ -46,34 +36,15 @@ class _BlockCheckoutImports(importlib.abc.MetaPathFinder):
 sys.meta_path.insert(0, _BlockCheckoutImports())
 
 
-def _raise(ex):
-    raise ex
-
-
-def engine_registered(idname=ENGINE):
-    return any(getattr(cls, "bl_idname", None) == idname and cls.is_registered
-               for cls in bpy.types.RenderEngine.__subclasses__())
-
-
 @pytest.fixture(scope="session")
 def addon():
-    """Link the checkout into the user_default repo (as a dev install would) and enable it."""
+    """The checkout linked into the user_default repo (as a dev install) and enabled."""
     try:
-        import embreex  # noqa: F401  (Blender would install the bundled wheel; here the venv has it)
+        import embreex  # noqa: F401  (Blender would install the bundled wheel; the venv has it)
     except ImportError as ex:
         pytest.fail(f"embreex is not importable: {ex}; run `make .venv/.installed`")
-    repo = Path(bpy.utils.user_resource('EXTENSIONS', path="user_default", create=True))
-    link = repo / ADDON_ID
-    if not link.exists():
-        link.symlink_to(ROOT, target_is_directory=True)
-    module = addon_utils.enable(ADDON_MODULE, default_set=True, handle_error=_raise)
-    assert module is sys.modules[ADDON_MODULE]
-    assert Path(module.__file__).parent == link, module.__file__
-    assert hasattr(bpy.types.Scene, "irad"), "register() did not add Scene.irad"
-    assert engine_registered(), f"{ENGINE} is not a registered RenderEngine"
-    yield module
-    addon_utils.disable(ADDON_MODULE, default_set=True, handle_error=_raise)
-    link.unlink()
+    yield addon_install.enable_extension()
+    addon_install.disable_extension()
 
 
 @pytest.fixture
