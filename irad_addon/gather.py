@@ -133,8 +133,12 @@ def facing_points(vpls, points):
 def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
     """(sample indices, VPL subset, flux scale, light tree or None) per worker task."""
     tasks = []
+    # The hit samples of each subset, from one sort instead of a pass per subset.
+    hits = np.flatnonzero(gb.hit)
+    hits = hits[np.argsort(subset_of_sample[hits], kind='stable')]
+    bounds = np.searchsorted(subset_of_sample[hits], np.arange(subsets + 1))
     for k, (subset, scale) in enumerate(vpl_subsets(vpls, subsets)):
-        idx = np.flatnonzero(gb.hit & (subset_of_sample == k))
+        idx = hits[bounds[k]:bounds[k + 1]]
         if subset.count == 0 or len(idx) == 0:
             continue
         tree = None
