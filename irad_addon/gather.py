@@ -86,18 +86,19 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
         # Pairs are sorted by point: repeat each point's row instead of gathering it.
         per_point = valid.sum(1)
         light = pairs % Y.shape[0]
-        origin = np.repeat((P + G * eps).astype(f32), per_point, axis=0)
+        # Ray ends in the tracer's float32 frame (exact far from the world origin).
+        origin = np.repeat(tracer.to_local(P + G * eps), per_point, axis=0)
         # Unnormalised directions: the segment is t in [0, 1), shortened at the VPL's
         # end by the offset (more at grazing angles) so its own surface does not block it.
-        direction = np.take(vpl_position.astype(f32), light, axis=0)
+        direction = np.take(tracer.to_local(vpl_position), light, axis=0)
         direction -= origin
         d = np.sqrt(dist2.ravel()[pairs])
         cos_vpl = cos_y.ravel()[pairs] / d
         tfar = f32(1 - 1e-5) - f32(2 * eps) / (d * np.maximum(cos_vpl, f32(1e-2)))
         if visible is None:
-            blocked = tracer.occluded(origin, direction, tfar, threads=False)
+            blocked = tracer.occluded(origin, direction, tfar, threads=False, local=True)
         else:
-            blocked = ~visible(origin, direction, tfar)
+            blocked = ~visible(origin + tracer.center, direction, tfar)   # world frame
         weight.ravel()[pairs[blocked]] = 0
     return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi
 

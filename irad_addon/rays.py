@@ -68,7 +68,12 @@ class Hits:
 class RayTracer:
     """Closest-hit and any-hit queries over a fixed set of world-space triangles.
     threads=False keeps a query on the calling thread (for callers that already run
-    in the pool)."""
+    in the pool).
+
+    Embree works in float32, so the tracer holds the triangles relative to the centre
+    of their bounds and moves every ray origin there in float64 first: a scene far from
+    the world origin traces exactly like the same scene at the origin (callers keep
+    float64 world positions; distances and barycentrics do not depend on the frame)."""
 
     def __init__(self, triangles):
         from embreex import mesh_construction, rtcore_scene
@@ -77,30 +82,34 @@ class RayTracer:
         self.empty = len(self.triangles) == 0
         flat = self.triangles.reshape(-1, 3)
         self.extent = float(np.linalg.norm(flat.max(0) - flat.min(0))) if not self.empty else 1.0
-        self.magnitude = float(np.abs(flat).max()) if not self.empty else 0.0
+        self.center = (0.5 * (flat.max(0).astype(np.float64) + flat.min(0))
+                       if not self.empty else np.zeros(3))
         if not self.empty:
+            local = self.to_local(self.triangles.reshape(-1, 3)).reshape(self.triangles.shape)
+            self.magnitude = float(np.abs(local).max())
             # Robust (watertight) traversal: rays through shared edges never slip through.
             self._scene = rtcore_scene.EmbreeScene(robust=True)
-            mesh_construction.TriangleMesh(self._scene, self.triangles)
+            mesh_construction.TriangleMesh(self._scene, local)
+        else:
+            self.magnitude = 0.0
+
+    def to_local(self, points):
+        """float32 coordinates relative to the scene's centre (subtracted in float64):
+        what `local=True` queries take as origins."""
+        return np.ascontiguousarray(np.asarray(points, np.float64) - self.center, np.float32)
 
     def offset_scale(self):
         """Ray-origin offset that stays above float32 round-off at any scene scale:
         a small fraction of the scene size plus ~8 float32 ulps of its largest
-        coordinate."""
+        coordinate in the tracer's local frame."""
         return 1e-5 * self.extent + 1e-6 * self.magnitude
 
-    def intersect(self, origins, directions, tfar=None, threads=True):
+    def intersect(self, origins, directions, tfar=None, threads=True, local=False):
         n = len(origins)
         if self.empty or n == 0:
             return Hits(np.full(n, np.inf, np.float32), np.full(n, -1, np.int32),
                         np.zeros((n, 2), np.float32))
-        origins = np.ascontiguousarray(origins, np.float32)
-        directions = np.ascontiguousarray(directions, np.float32)
-        tfar = self._tfar(tfar, n)
-        parts = parallel_map(
-            lambda a, b: self._scene.run(origins[a:b], directions[a:b], dists=tfar[a:b].copy(),
-                                         output=1),
-            split_ranges(n, 4 * worker_count() if threads else 1))
+        parts = self._run(origins, directions, tfar, threads, local, output=1)
         prim = np.concatenate([p['primID'] for p in parts]).astype(np.int32)
         dist = np.concatenate([p['tfar'] for p in parts])
         bary = np.stack([np.concatenate([p['u'] for p in parts]),
@@ -108,19 +117,26 @@ class RayTracer:
         dist[prim < 0] = np.inf
         return Hits(dist, prim, bary)
 
-    def occluded(self, origins, directions, tfar, threads=True):
-        """True where something blocks the segment origin + t*direction, 0 < t < tfar."""
+    def occluded(self, origins, directions, tfar, threads=True, local=False):
+        """True where something blocks the segment origin + t*direction, 0 < t < tfar.
+        local=True: origins are already float32 in the tracer's frame (`to_local`)."""
         n = len(origins)
         if self.empty or n == 0:
             return np.zeros(n, bool)
-        origins = np.ascontiguousarray(origins, np.float32)
+        return np.concatenate(self._run(origins, directions, tfar, threads, local,
+                                        query='OCCLUDED')) >= 0
+
+    def _run(self, origins, directions, tfar, threads, local, **query):
+        """embreex `run` over the batch, split into pool tasks; a list of their results."""
+        n = len(origins)
+        origins = (np.ascontiguousarray(origins, np.float32) if local
+                   else self.to_local(origins))
         directions = np.ascontiguousarray(directions, np.float32)
         tfar = self._tfar(tfar, n)
-        parts = parallel_map(
+        return parallel_map(
             lambda a, b: self._scene.run(origins[a:b], directions[a:b], dists=tfar[a:b].copy(),
-                                         query='OCCLUDED'),
+                                         **query),
             split_ranges(n, 4 * worker_count() if threads else 1))
-        return np.concatenate(parts) >= 0
 
     @staticmethod
     def _tfar(tfar, n):

@@ -198,25 +198,14 @@ def far_from_origin(core, room_scale):
     return images[0]["Combined"][..., :3], images[1]["Combined"][..., :3]
 
 
-def test_far_from_the_origin_renders_like_at_the_origin(core):
-    # A 2 km room centred 1e7 m away: float32 spacing there is 1 m (0.05% of the room).
-    a, b = far_from_origin(core, 1000.0)
-    assert abs(b.mean() / a.mean() - 1) < 0.01
-    assert np.abs(b - a).max() < 0.1 * a.max()
-    assert np.mean(np.abs(b - a) > 0.01 * a.max()) < 0.1
-
-
-@pytest.mark.xfail(strict=True, reason=(
-    "A 200 m room 1e7 m away is 200 float32 ulps across: camera rays, particle hits and "
-    "shadow-ray ends round by up to 1 m and rays start 10 m (8 ulps) off surfaces, so the "
-    "VPLs differ from those at the origin and ~10% of the pixels differ by more than 10% "
-    "of the peak; tracing in a frame local to the scene (coordinates relative to its "
-    "centre) would keep it exact"))
-def test_far_from_the_origin_small_room(core):
-    # A 200 m room 1e7 m away: still 200 float32 ulps across.
-    a, b = far_from_origin(core, 100.0)
-    assert abs(b.mean() / a.mean() - 1) < 0.01
-    assert np.mean(np.abs(b - a) > 0.1 * a.max()) < 0.01
+@pytest.mark.parametrize("room_scale", [1000.0, 100.0])
+def test_far_from_the_origin_renders_like_at_the_origin(core, room_scale):
+    # A 2 km (200 m) room centred 1e7 m away, where float32 spacing is 1 m: the
+    # tracer works relative to the scene's centre, so the image is the same as at the
+    # origin up to float64 round-off (measured 6e-7 of the peak).
+    a, b = far_from_origin(core, room_scale)
+    assert abs(b.mean() / a.mean() - 1) < 1e-4
+    assert np.abs(b - a).max() < 1e-4 * a.max()
 
 
 def test_micrometre_scene_renders_like_a_metre_scene(core):
