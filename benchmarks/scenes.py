@@ -321,9 +321,10 @@ def _remove_face(ob, side):
     bm.free()
 
 
-def sunlit_room(resolution=96):
-    """Closed 4 x 4 x 2.5 room with a window in one wall; a sun shines through it."""
-    scene = _scene("sunlit_room", resolution)
+def sunlit_room(resolution=96, portal=False):
+    """Closed 4 x 4 x 2.5 room with a window in one wall; a sun shines through it.
+    portal: a Cycles light portal fills the window (it does not change the image)."""
+    scene = _scene("sunlit_room:portal" if portal else "sunlit_room", resolution)
     white, floor = diffuse("white", WHITE), diffuse("floor", (0.55, 0.4, 0.3))
     quad(scene, "floor", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], floor)
     quad(scene, "ceiling", [(-2, -2, 2.5), (-2, 2, 2.5), (2, 2, 2.5), (2, -2, 2.5)], white)
@@ -341,7 +342,19 @@ def sunlit_room(resolution=96):
     # Sun from the east, 35 degrees above the horizon: light travels along -x and down.
     light(scene, "SUN", 40.0, (4, 0, 3), (0, math.radians(55), 0), angle=math.radians(0.5))
     camera(scene, (-1.8, -1.8, 1.4), (math.radians(80), 0, math.radians(-50)), lens_deg=80)
+    if portal:
+        window_portal(scene, (x, 0, 1.3), 1.6, 1.0)
     return scene
+
+
+def window_portal(scene, center, width, height):
+    """A portal in a window of the wall x = center.x, letting light in along -x:
+    local -Z (the way light passes) turned to -x, local X to -z (height), Y to y (width)."""
+    ob = light(scene, "AREA", 0.0, center, (0, math.radians(90), 0), shape="RECTANGLE",
+               size=height, size_y=width)
+    ob.name = "portal"
+    ob.data.cycles.is_portal = True
+    return ob
 
 
 def high_poly(triangles=1_000_000, resolution=96):

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from .scene_data import AreaLight, PointLight, SpotLight, SunLight
+from .scene_data import AreaLight, PointLight, Portal, SpotLight, SunLight
 
 
 def is_baked(ob):
@@ -36,15 +36,31 @@ def _unit(v):
     return v / n if n > 0 else v
 
 
-def light_from(ob, matrix, warn):
-    """A scene_data light for an evaluated light object, or None (portal, unsupported)."""
-    light = ob.data
+def is_portal(light):
+    """A Cycles light portal: an area light with ``cycles.is_portal``."""
     cycles = getattr(light, "cycles", None)      # present once Cycles is loaded
-    if cycles is not None and getattr(cycles, "is_portal", False):
-        return None
+    return light.type == "AREA" and bool(getattr(cycles, "is_portal", False))
+
+
+def area_shape(light, m):
+    """(axis_u, axis_v, shape) of an area light: half-extent vectors in world space
+    (object scale included) and 'RECTANGLE' or 'ELLIPSE'."""
+    size = float(light.size)
+    size_y = float(light.size_y) if light.shape in ("RECTANGLE", "ELLIPSE") else size
+    shape = "RECTANGLE" if light.shape in ("SQUARE", "RECTANGLE") else "ELLIPSE"
+    return m[:3, 0] * size / 2, m[:3, 1] * size_y / 2, shape
+
+
+def light_from(ob, matrix, warn):
+    """A scene_data light (or Portal) for an evaluated light object, or None
+    (unsupported). SceneData keeps the portals apart from the lights."""
+    light = ob.data
     m = np.asarray(matrix, np.float64)
     position = m[:3, 3].copy()
     down = _unit(-m[:3, 2])                     # a light points down its local -Z
+    if is_portal(light):                        # light passes in along the portal's -Z
+        axis_u, axis_v, shape = area_shape(light, m)
+        return Portal(position, axis_u, axis_v, down, shape)
     color = _light_color(light)
     power = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
     normalize = bool(getattr(light, "normalize", True))
@@ -60,11 +76,7 @@ def light_from(ob, matrix, warn):
         return SpotLight(position, down, color, power, r,
                          float(light.spot_size), float(light.spot_blend), _soft_falloff(light))
     if light.type == "AREA":
-        size = float(light.size)
-        size_y = float(light.size_y) if light.shape in ("RECTANGLE", "ELLIPSE") else size
-        shape = "RECTANGLE" if light.shape in ("SQUARE", "RECTANGLE") else "ELLIPSE"
-        axis_u = m[:3, 0] * size / 2
-        axis_v = m[:3, 1] * size_y / 2
+        axis_u, axis_v, shape = area_shape(light, m)
         if not normalize:                       # unnormalised: Power is per unit area
             area = 4 * np.linalg.norm(axis_u) * np.linalg.norm(axis_v)
             power *= area * (math.pi / 4 if shape == "ELLIPSE" else 1.0)

@@ -71,8 +71,8 @@ def prepare_frame(scene: SceneData, tracer_cache: RayTracerCache | None = None) 
     tracer = cache.get(tris)
     bounds = geometry.bounding_sphere(tris)
     emission = emission_table[material]
-    emitters = lights.build_emitters(scene.lights, tris, emission,
-                                     scene.world_radiance, bounds, tracer.offset_scale())
+    emitters = lights.build_emitters(scene.lights, tris, emission, scene.world_radiance,
+                                     bounds, tracer.offset_scale(), scene.portals)
     mirror = None
     if mats.mirror is not None and np.any(mats.mirror):
         mirror = np.clip(_clean_colors(mats.mirror, len(albedo_table)), 0.0, 1.0)[material]

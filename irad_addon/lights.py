@@ -5,11 +5,16 @@ Each emitter answers three questions, vectorised over samples:
   emit(u)                        particle origins, directions and flux (Keller 1997, sec. 2)
   incident(points, normals, u)   shadow-ray directions, distances and the irradiance
                                  each sample contributes (receiver cosine included)
+
+Sun and world particles enter the scene through its light portals when it has any
+(Cycles' portals: area lights with is_portal, e.g. in windows), otherwise through a
+disc or sphere around the whole scene. Portals change only where particles start,
+never the light: they do not emit, block or change the direct light.
 """
 import numpy as np
 
 from . import geometry, sampling
-from .scene_data import AreaLight, PointLight, SpotLight, SunLight
+from .scene_data import AreaLight, PointLight, Portal, SpotLight, SunLight
 
 INF_DISTANCE = np.float32(1e30)
 
@@ -26,6 +31,19 @@ def _unit(v):
 def smoothstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
+
+
+def patch_area(axis_u, axis_v, ellipse):
+    """Area of a rectangle or ellipse with half-extent vectors axis_u, axis_v."""
+    return np.where(ellipse, np.pi, 4.0) * np.linalg.norm(axis_u, axis=-1) * \
+        np.linalg.norm(axis_v, axis=-1)
+
+
+def patch_points(center, axis_u, axis_v, ellipse, u):
+    """Uniform points on rectangles / ellipses (per row or one for all) from u (n, 2)."""
+    square = 2.0 * u - 1.0
+    uv = np.where(np.asarray(ellipse)[..., None], sampling.square_to_disk(u), square)
+    return center + uv[:, :1] * axis_u + uv[:, 1:2] * axis_v
 
 
 class PointEmitter:
@@ -138,8 +156,7 @@ class AreaEmitter:
         self.axis_v = np.asarray(light.axis_v, np.float64)
         self.normal, _ = _unit(np.asarray(light.normal, np.float64))
         self.ellipse = light.shape == 'ELLIPSE'
-        half_u, half_v = np.linalg.norm(self.axis_u), np.linalg.norm(self.axis_v)
-        self.area = (np.pi if self.ellipse else 4.0) * half_u * half_v
+        self.area = float(patch_area(self.axis_u, self.axis_v, self.ellipse))
         self.flux = np.asarray(light.color, np.float64) * light.power
         self.radiance = self.flux / (np.pi * self.area) if self.area > 0 else np.zeros(3)
 
@@ -147,8 +164,7 @@ class AreaEmitter:
         return self.flux if self.area > 0 else np.zeros(3)
 
     def _points(self, u):
-        uv = sampling.square_to_disk(u) if self.ellipse else 2.0 * u - 1.0
-        return self.center + uv[:, :1] * self.axis_u + uv[:, 1:2] * self.axis_v
+        return patch_points(self.center, self.axis_u, self.axis_v, self.ellipse, u)
 
     def emit(self, u):
         n = len(u)
@@ -165,15 +181,92 @@ class AreaEmitter:
         return direction, dist, self.radiance * g[:, None]
 
 
-class SunEmitter:
-    """Distant light: irradiance S at normal incidence from a cone of angle `angle`."""
+def usable_portals(portals, bounds):
+    """Portals (Portals) of the scene_data.Portal list with a finite, non-zero area and
+    a direction, or None when there are none (particles then start around the scene)."""
+    def usable(p):
+        numbers = np.concatenate([p.center, p.axis_u, p.axis_v, p.normal]).astype(np.float64)
+        area = patch_area(np.asarray(p.axis_u, np.float64), np.asarray(p.axis_v, np.float64),
+                          p.shape == 'ELLIPSE')
+        return np.isfinite(numbers).all() and area > 0 and np.linalg.norm(p.normal) > 0
+    found = [p for p in portals if isinstance(p, Portal) and usable(p)]
+    return Portals(found, bounds) if found else None
 
-    def __init__(self, light: SunLight, bounds):
+
+class Portals:
+    """The scene's light portals, where sun and world particles enter. A particle is
+    sampled as a line through a portal (a point on it and an inward direction) and
+    starts where that line enters the scene's bounding sphere, so that geometry outside
+    the opening still shadows it."""
+
+    def __init__(self, portals, bounds):
+        def stack(name):
+            return np.array([getattr(p, name) for p in portals], np.float64).reshape(-1, 3)
+        self.center, self.axis_u, self.axis_v = stack('center'), stack('axis_u'), stack('axis_v')
+        self.normal, _ = _unit(stack('normal'))
+        self.ellipse = np.array([p.shape == 'ELLIPSE' for p in portals], bool)
+        self.area = patch_area(self.axis_u, self.axis_v, self.ellipse)
+        self.bounds = bounds
+
+    def choose(self, weights, u):
+        """Portal per particle with probability weights / sum(weights), and that probability."""
+        prob = weights / weights.sum()
+        cdf = np.cumsum(prob)
+        cdf[-1] = 1.0
+        index = np.minimum(np.searchsorted(cdf, u, side='right'), len(cdf) - 1)
+        return index, prob[index]
+
+    def points(self, index, u):
+        return patch_points(self.center[index], self.axis_u[index], self.axis_v[index],
+                            self.ellipse[index], u)
+
+    def inward_crossings(self, index, points, travel):
+        """(n,) portals that each line (through a point on portal `index`, along
+        `travel`) passes inwards. Every one of them samples that line, so each sample
+        is weighted 1 / count: the weights sum to one (Veach 1997, multi-sample MIS)."""
+        cos = travel @ self.normal.T                                    # (n, K)
+        into = cos > 0
+        t = np.einsum('kj,nkj->nk', self.normal, self.center[None] - points[:, None])
+        at = points[:, None] + (t / np.where(into, cos, 1.0))[..., None] * travel[:, None]
+        a, b = (np.einsum('nkj,kj->nk', at - self.center, axis) / _dot(axis, axis)
+                for axis in (self.axis_u, self.axis_v))
+        inside = np.where(self.ellipse, a * a + b * b <= 1.0, np.maximum(abs(a), abs(b)) <= 1.0)
+        crossed = inside & into
+        crossed[np.arange(len(index)), index] = True      # its own portal, despite rounding
+        return crossed.sum(1)
+
+    def entry_points(self, points, travel):
+        """Where the lines through `points` along `travel` enter the scene's bounding
+        sphere (1 % margin): particles start there, before anything outside."""
+        center, radius = self.bounds
+        q = points - center
+        b = _dot(q, travel)
+        t = b + np.sqrt(np.maximum(b * b - _dot(q, q) + (1.01 * radius) ** 2, 0.0))
+        return points - travel * np.maximum(t, 0.0)[:, None]
+
+    def lines(self, weights, u, travel_of):
+        """Particles through the portals: portal chosen by `weights` with u[:, 4], a
+        uniform point on it from u[:, 0:2], travel directions travel_of(index). Returns
+        (start, travel, index, probability of the portal, MIS weight)."""
+        index, prob = self.choose(weights, u[:, 4])
+        point = self.points(index, u[:, 0:2])
+        travel = travel_of(index)
+        share = 1.0 / self.inward_crossings(index, point, travel)
+        return self.entry_points(point, travel), travel, index, prob, share
+
+
+class SunEmitter:
+    """Distant light: irradiance S at normal incidence from a cone of angle `angle`,
+    i.e. radiance L = S / (pi sin^2(angle / 2)) (docs/radiometry.md)."""
+
+    def __init__(self, light: SunLight, bounds, portals=None):
         self.direction, _ = _unit(np.asarray(light.direction, np.float64))
         self.irradiance = np.asarray(light.color, np.float64) * light.strength
-        self.cos_half = float(np.cos(min(light.angle, np.pi) / 2))
+        self.half_angle = min(float(light.angle), np.pi) / 2
+        self.cos_half = float(np.cos(self.half_angle))
         self.delta = self.cos_half >= 1.0
         self.center, self.radius = bounds
+        self.portals = portals
 
     def _directions(self, u):
         if self.delta:
@@ -181,10 +274,37 @@ class SunEmitter:
         local = sampling.square_to_cone(u, self.cos_half)
         return sampling.to_world(local, np.broadcast_to(self.direction, (len(u), 3)))
 
+    def cone_gain(self):
+        """L * solid angle / S for uniform cone sampling: 2 pi (1 - c) / (pi (1 - c^2))
+        = 2 / (1 + c); each sampled direction carries S times this (1 for angle 0)."""
+        return 1.0 if self.delta else 2.0 / (1.0 + self.cos_half)
+
+    def portal_weights(self):
+        """(K,) A cos(theta) of each portal for the cone's best direction, theta from
+        its inward normal to the sun's travel: 0 only if no sun direction passes in."""
+        cos = np.clip(-(self.portals.normal @ self.direction), -1.0, 1.0)
+        best = np.cos(np.maximum(np.arccos(cos) - self.half_angle, 0.0))
+        return self.portals.area * np.maximum(best, 0.0)
+
+    def portal_flux(self):
+        """(K, 3) flux through each portal: S A E[g max(cos, 0)] over the cone (a
+        32 x 32 midpoint quadrature), = S A cos(theta) unless the cone straddles it."""
+        if self.delta:
+            cos = -(self.portals.normal @ self.direction)
+            return self.portals.area[:, None] * np.maximum(cos, 0.0)[:, None] * self.irradiance
+        grid = (np.stack(np.meshgrid(np.arange(32), np.arange(32)), -1).reshape(-1, 2) + 0.5) / 32
+        cos = -(self._directions(grid) @ self.portals.normal.T)          # (1024, K)
+        mean = self.cone_gain() * np.maximum(cos, 0.0).mean(0)
+        return (self.portals.area * mean)[:, None] * self.irradiance
+
     def power(self):
-        return self.irradiance * np.pi * self.radius ** 2
+        if self.portals is not None:
+            return self.portal_flux().sum(0)
+        return self.irradiance * self.cone_gain() * np.pi * self.radius ** 2
 
     def emit(self, u):
+        if self.portals is not None:
+            return self._emit_through_portals(u)
         # Particles enter through a disc facing the sun that covers the scene's bounding
         # sphere, so each carries the flux through its share of the disc.
         n = len(u)
@@ -194,30 +314,57 @@ class SunEmitter:
         origin = self.center + to_sun * (1.01 * self.radius) + disc[:, :1] * t + disc[:, 1:2] * s
         return origin, -to_sun, np.broadcast_to(self.power() / n, (n, 3))
 
+    def _emit_through_portals(self, u):
+        """Uniform points on portals chosen by projected area, the sun's directions:
+        flux L dw A cos / (p_portal n), shared among portals crossed (Portals.lines)."""
+        n = len(u)
+        weights = self.portal_weights()
+        travel = -self._directions(u[:, 2:4])
+        origin, travel, index, prob, share = self.portals.lines(weights, u, lambda i: travel)
+        cos = np.maximum(_dot(travel, self.portals.normal[index]), 0.0)
+        carried = self.cone_gain() * self.portals.area[index] * cos * share / (prob * n)
+        return origin, travel, self.irradiance * carried[:, None]
+
     def incident(self, points, normals, u):
         direction = self._directions(u)
         cos_x = np.maximum(_dot(normals, direction), 0.0)
-        return direction, np.full(len(points), INF_DISTANCE), self.irradiance * cos_x[:, None]
+        return direction, np.full(len(points), INF_DISTANCE), \
+            self.irradiance * (self.cone_gain() * cos_x)[:, None]
 
 
 class WorldEmitter:
     """Constant background radiance C from every direction."""
     delta = False
 
-    def __init__(self, radiance, bounds):
+    def __init__(self, radiance, bounds, portals=None):
         self.radiance = np.asarray(radiance, np.float64)
         self.center, self.radius = bounds
+        self.portals = portals
 
     def power(self):
+        if self.portals is not None:      # L pi A through each portal's inward hemisphere
+            return self.radiance * np.pi * self.portals.area.sum()
+        # L times the bounding sphere's projected area pi R^2 times 4 pi steradians.
         return self.radiance * 4 * np.pi ** 2 * self.radius ** 2
 
     def emit(self, u):
+        if self.portals is not None:
+            return self._emit_through_portals(u)
         n = len(u)
         travel = sampling.square_to_sphere(u[:, 2:4])
         t, s = sampling.orthonormal_basis(travel)
         disc = sampling.square_to_disk(u[:, 0:2]) * self.radius
         origin = self.center - travel * (1.01 * self.radius) + disc[:, :1] * t + disc[:, 1:2] * s
         return origin, travel, np.broadcast_to(self.power() / n, (n, 3))
+
+    def _emit_through_portals(self, u):
+        """Portals chosen by area, uniform points, cosine-weighted inward directions:
+        L cos dA dw / ((A_k / A) (1 / A_k) (cos / pi)) = L pi A per particle."""
+        n = len(u)
+        local = sampling.square_to_cosine_hemisphere(u[:, 2:4])
+        origin, travel, index, prob, share = self.portals.lines(
+            self.portals.area, u, lambda i: sampling.to_world(local, self.portals.normal[i]))
+        return origin, travel, self.power() * (share / n)[:, None]
 
     def incident(self, points, normals, u):
         # Cosine-weighted sampling: L cos / (cos / pi) = pi L per sample.
@@ -284,10 +431,12 @@ class EmissiveMeshEmitter:
 
 
 def build_emitters(scene_lights, triangles, emission, world_radiance, bounds,
-                   surface_offset=0.0):
+                   surface_offset=0.0, portals=()):
     """Emitters for every light with non-zero power, the emissive triangles
     (per-triangle radiance `emission`) and the world. `surface_offset` is the
-    tracer's ray offset, for shadow rays that end on emissive geometry."""
+    tracer's ray offset, for shadow rays that end on emissive geometry. Sun and world
+    particles enter through `portals` (scene_data.Portal) when there are any."""
+    openings = usable_portals(portals, bounds)
     emitters = []
     for light in scene_lights:
         if isinstance(light, SpotLight):
@@ -297,7 +446,7 @@ def build_emitters(scene_lights, triangles, emission, world_radiance, bounds,
         elif isinstance(light, AreaLight):
             e = AreaEmitter(light)
         elif isinstance(light, SunLight):
-            e = SunEmitter(light, bounds)
+            e = SunEmitter(light, bounds, openings)
         else:
             continue
         if np.all(np.isfinite(e.power())) and e.power().max() > 0:
@@ -307,5 +456,5 @@ def build_emitters(scene_lights, triangles, emission, world_radiance, bounds,
         emitters.append(EmissiveMeshEmitter(triangles[lit], emission[lit], surface_offset))
     world = np.asarray(world_radiance, np.float64)
     if np.all(np.isfinite(world)) and world.max() > 0:
-        emitters.append(WorldEmitter(world, bounds))
+        emitters.append(WorldEmitter(world, bounds, openings))
     return emitters

@@ -78,6 +78,17 @@ class SunLight:
 
 
 @dataclass
+class Portal:
+    """A Cycles light portal (an area light with ``cycles.is_portal``): an opening, such
+    as a window, through which sun and world light enter. It neither emits nor blocks."""
+    center: np.ndarray           # (3,)
+    axis_u: np.ndarray           # (3,) half-extent vector along the light's local X
+    axis_v: np.ndarray           # (3,) half-extent vector along local Y
+    normal: np.ndarray           # (3,) unit, the way light passes in (the light's -Z)
+    shape: str                   # 'RECTANGLE' or 'ELLIPSE', as AreaLight
+
+
+@dataclass
 class Camera:
     matrix_world: np.ndarray     # float64 (4, 4): camera to world, looks down its -Z
     projection: str              # 'PERSP' or 'ORTHO'
@@ -104,6 +115,14 @@ class SceneData:
     world_radiance: np.ndarray   # (3,) constant background radiance, zeros if none
     camera: Camera | None
     warnings: list = field(default_factory=list)   # one-time messages for the user
+    portals: list = field(default_factory=list)    # Portal: where sun and world light enter
+
+    def __post_init__(self):
+        # Extraction reads portals from light objects: move any found among the lights.
+        found = [light for light in self.lights if isinstance(light, Portal)]
+        if found:
+            self.lights = [light for light in self.lights if not isinstance(light, Portal)]
+            self.portals = list(self.portals) + found
 
     def extent(self) -> float:
         """Diagonal of the geometry's bounding box: the scene's length scale."""

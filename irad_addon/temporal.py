@@ -22,7 +22,7 @@ def light_setup_key(scene, settings, geometry_key):
                   scene.world_radiance):
         h.update(np.ascontiguousarray(array).tobytes())
     h.update(repr([(type(light).__name__, sorted(vars(light).items(), key=str))
-                   for light in scene.lights]).encode())
+                   for light in [*scene.lights, *scene.portals]]).encode())
     h.update(repr([getattr(settings, name) for name in _VPL_SETTINGS]).encode())
     if settings.variant in _CAMERA_DEPENDENT and scene.camera is not None:
         h.update(repr(sorted(vars(scene.camera).items(), key=str)).encode())
