@@ -20,7 +20,8 @@ def render_settings(scene):
     seed = irad.seed + (scene.frame_current if irad.use_animated_seed else 0)
     return render.RenderSettings(
         particles=irad.particles, max_bounces=irad.max_bounces, clamp=irad.clamp,
-        aa_samples=irad.aa_samples, interleave=irad.interleave,
+        aa_samples=irad.aa_samples, coverage_samples=irad.coverage_samples,
+        interleave=irad.interleave,
         bias_compensation=irad.bias_compensation, use_lightcuts=irad.use_lightcuts,
         lightcut_error=irad.lightcut_error, max_cut=irad.max_cut,
         light_samples=irad.light_samples, seed=seed,

@@ -49,26 +49,33 @@ class SurfacePoints:
     emission: np.ndarray         # float64 (n, 3)
 
 
-def trace_surfaces(frame, origins, directions, tfar=None):
-    """Closest hits of rays, with everything shading needs at them."""
+def trace_surfaces(frame, origins, directions, tfar=None, smooth_normals=True):
+    """Closest hits of rays, with everything shading needs at them (smooth_normals=False:
+    the geometric normal stands in for the interpolated one, for coverage samples)."""
     hits = frame.tracer.intersect(origins, directions, tfar)
     hit = hits.hit
-    n = len(hit)
+    # Every row is computed (misses on triangle 0) and misses zeroed after: cheaper
+    # than scattering through the hit mask when most rays hit.
     tri = np.where(hit, hits.triangle, 0)
-    points = SurfacePoints(hit, tri, hits.distance, *[np.zeros((n, 3)) for _ in range(5)])
-    if hit.any():
-        t, bary = tri[hit], hits.barycentric[hit]
-        geo = geometry.face_forward(frame.geo_normals[t], -np.asarray(directions)[hit])
-        points.geo_normal[hit] = geo
-        points.position[hit] = geometry.surface_points(frame.triangles, t, bary)
-        points.normal[hit] = geometry.face_forward(
-            geometry.shading_normals(frame.corner_normals, t, bary, geo), geo)
-        points.albedo[hit] = frame.albedo[t]
-        points.emission[hit] = frame.emission[t]
+    if len(frame.triangles) == 0:
+        zeros = [np.zeros((len(hit), 3)) for _ in range(5)]
+        return SurfacePoints(hit, tri, hits.distance, *zeros)
+    bary = hits.barycentric
+    geo = geometry.face_forward(frame.geo_normals[tri], -np.asarray(directions))
+    normal = (geometry.face_forward(
+        geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
+        if smooth_normals else geo.copy())
+    points = SurfacePoints(hit, tri, hits.distance,
+                           geometry.surface_points(frame.triangles, tri, bary), normal, geo,
+                           frame.albedo[tri], frame.emission[tri])
+    if not hit.all():
+        miss = ~hit
+        for name in ("position", "normal", "geo_normal", "albedo", "emission"):
+            getattr(points, name)[miss] = 0.0
     return points
 
 
-def build_gbuffer(frame, cam, samples, rng, rows=None):
+def build_gbuffer(frame, cam, samples, rng, rows=None, smooth_normals=True):
     """G-buffer of image rows rows = (first, stop), the whole image by default."""
     rows = rows or (0, cam.height)
     px, py, pixel, sample = camera_rays_module.pixel_samples(cam.width, rows, samples, rng)
@@ -77,7 +84,7 @@ def build_gbuffer(frame, cam, samples, rng, rows=None):
     near = cam.clip_start / cos_axis
     far = cam.clip_end / cos_axis
     s = trace_surfaces(frame, origins + directions * near[:, None], directions,
-                       np.maximum(far - near, 0))
+                       np.maximum(far - near, 0), smooth_normals)
     length = s.distance + near
     throughput = None
     if frame.mirror is not None:

@@ -39,33 +39,44 @@ def window_offsets(k):
     return [(dy, dx) for dy in r for dx in r]
 
 
-def _shifted(image, dy, dx, fill):
-    """image[y + dy, x + dx], `fill` outside."""
-    h, w = image.shape[:2]
-    out = np.full_like(image, fill)
-    ys, yd = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h + min(-dy, 0))
-    xs, xd = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w + min(-dx, 0))
-    out[yd, xd] = image[ys, xs]
-    return out
+def _padded(image, pad, fill, channels):
+    """image (..., H, W[, C]) with `pad` pixels of `fill` around H and W."""
+    lead = image.ndim - 2 - channels
+    width = [(0, 0)] * lead + [(pad, pad), (pad, pad)] + [(0, 0)] * channels
+    return np.pad(image, width, constant_values=fill)
 
 
 def discontinuity_filter(irradiance, depth, normal, hit, k):
-    """Average irradiance (H, W, 3) over k x k neighbours that continue the centre's
-    surface: |depth - depth_c| < tol * depth_c and normal . normal_c > NORMAL_COSINE."""
+    """Average irradiance (..., H, W, 3) over k x k neighbours that continue the
+    centre's surface: |depth - depth_c| < tol * depth_c and normal . normal_c >
+    NORMAL_COSINE. Leading axes (the anti-aliasing layers) are filtered separately."""
     if k <= 1:
         return irradiance
-    total = np.zeros_like(irradiance)
-    weight = np.zeros(depth.shape)
+    f32 = np.float32
+    h, w = depth.shape[-2:]
+    pad = WINDOW_TILES * k
+    # float32 planes with the channel axis first: every window is a cheap strided view.
+    planes = lambda a: np.moveaxis(a, -1, 0).astype(f32)   # noqa: E731
+    E, N = _padded(planes(irradiance), pad, 0.0, 0), _padded(planes(normal), pad, 0.0, 0)
+    Z, H = _padded(depth.astype(f32), pad, np.inf, 0), _padded(hit, pad, False, 0)
+    centre_normal, centre_depth = planes(normal), depth.astype(f32)
+    tolerance = (DEPTH_TOLERANCE * depth).astype(f32)
+    total = np.zeros((3,) + depth.shape, f32)
+    weight = np.zeros(depth.shape, f32)
     for dy, dx in window_offsets(k):
-        e = _shifted(irradiance, dy, dx, 0.0)
-        z = _shifted(depth, dy, dx, np.inf)
-        n = _shifted(normal, dy, dx, 0.0)
-        h = _shifted(hit, dy, dx, False)
-        same = (h & hit & (np.abs(z - depth) <= DEPTH_TOLERANCE * depth)
-                & (np.einsum('ijk,ijk->ij', n, normal) >= NORMAL_COSINE))
-        total += e * same[..., None]
+        window = (Ellipsis, slice(pad + dy, pad + dy + h), slice(pad + dx, pad + dx + w))
+        n = N[window]
+        cosine = n[0] * centre_normal[0]
+        cosine += n[1] * centre_normal[1]
+        cosine += n[2] * centre_normal[2]
+        same = H[window] & hit
+        same &= np.abs(Z[window] - centre_depth) <= tolerance
+        same &= cosine >= NORMAL_COSINE
+        same = same.astype(f32)
+        total += E[window] * same
         weight += same
-    return np.where(weight[..., None] > 0, total / np.maximum(weight, 1)[..., None], irradiance)
+    filtered = np.where(weight > 0, total / np.maximum(weight, 1), planes(irradiance))
+    return np.moveaxis(filtered, 0, -1).astype(np.float64)
 
 
 def filter_sample_layers(irradiance, gb, k):
@@ -74,7 +85,7 @@ def filter_sample_layers(irradiance, gb, k):
     if k <= 1:
         return irradiance
     h, w, s = gb.height, gb.width, gb.samples
-    layer = lambda a: a.reshape((s, h, w) + a.shape[1:])
-    E, Z, N, H = layer(irradiance), layer(gb.depth), layer(gb.normal), layer(gb.hit)
-    out = np.stack([discontinuity_filter(E[i], Z[i], N[i], H[i], k) for i in range(s)])
+    layer = lambda a: a.reshape((s, h, w) + a.shape[1:])   # noqa: E731
+    out = discontinuity_filter(layer(irradiance), layer(gb.depth), layer(gb.normal),
+                               layer(gb.hit), k)
     return out.reshape(irradiance.shape)

@@ -57,9 +57,15 @@ class IRadSettings(bpy.types.PropertyGroup):
                     "this fraction of the pixel's estimate")
     max_cut: IntProperty(name="Max Cut", default=_DEFAULT.max_cut, min=1, soft_max=10000,
                          max=1_000_000, description="Most clusters (shadow rays) per pixel")
-    aa_samples: IntProperty(name="AA Samples", default=_DEFAULT.aa_samples, min=1,
+    aa_samples: IntProperty(name="Shading Samples", default=_DEFAULT.aa_samples, min=1,
                             soft_max=64, max=4096,
-                            description="Camera rays per pixel (anti-aliasing)")
+                            description="Camera samples per pixel that gather light "
+                                        "(the render's cost grows with them)")
+    coverage_samples: IntProperty(
+        name="Edge Samples", default=_DEFAULT.coverage_samples, min=0, soft_max=64,
+        max=4096, description="Camera rays per pixel for anti-aliased edges: each takes "
+                              "the light gathered by a shading sample on the same surface "
+                              "(no more than Shading Samples: off)")
     interleave: IntProperty(name="Interleave", default=_DEFAULT.interleave, min=1, soft_max=8,
                             max=16,
                             description="Interleaved sampling: each pixel of a k x k tile "

@@ -4,7 +4,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import bias_compensation, gather, geometry, interleaving, mirrors, temporal, variants
+from . import (antialiasing, bias_compensation, gather, geometry, interleaving, mirrors,
+               temporal, variants)
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -14,7 +15,8 @@ class RenderSettings:
     particles: int = 2048
     max_bounces: int = 32        # Russian roulette ends most paths long before this
     clamp: float = 1.0           # VPL clamping distance in units of the mean VPL spacing
-    aa_samples: int = 4
+    aa_samples: int = 4          # shaded camera samples per pixel (what the gather costs)
+    coverage_samples: int = 16   # camera rays per pixel for edges (antialiasing.py)
     interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
     bias_compensation: bool = True   # restore the energy clamping removes (Kollig & Keller)
     use_lightcuts: bool = False  # gather a light-tree cut per point instead of every VPL
@@ -55,6 +57,13 @@ def clamp_distance(frame, vpls, clamp):
 # Camera samples per band of rows: bounds the G-buffer and gather temporaries
 # (~200 bytes a sample) so that 1920x1080 with many VPLs stays well under 2 GB.
 SAMPLES_PER_BAND = 1 << 19
+
+
+def band_samples(settings):
+    """Samples per pixel that size the bands: the shading samples, plus the coverage
+    samples at a quarter (they hold a G-buffer row each but no gather temporaries)."""
+    coverage = settings.coverage_samples if settings.coverage_samples > settings.aa_samples else 0
+    return settings.aa_samples + coverage // 4
 
 
 def row_bands(height, width, samples, interleave):
@@ -116,7 +125,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     cam = scene.camera
     passes = {name: np.zeros((cam.height, cam.width, c), np.float32)
               for name, c in PASS_CHANNELS.items()}
-    bands = row_bands(cam.height, cam.width, settings.aa_samples, settings.interleave)
+    bands = row_bands(cam.height, cam.width, band_samples(settings), settings.interleave)
     dmin = clamp_distance(frame, vpls, settings.clamp)
     for number, rows in enumerate(bands):
         def band_progress(fraction, message):
@@ -149,6 +158,9 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
     t = time.perf_counter()
     report(0.0, "Tracing camera rays")
     gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
+    coverage = (build_gbuffer(frame, cam, settings.coverage_samples, rng, padded,
+                              smooth_normals=False)
+                if settings.coverage_samples > settings.aa_samples else None)
     tally.add("gbuffer", t)
 
     t = time.perf_counter()
@@ -187,6 +199,14 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
     E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
     if check():
         raise Cancelled()
+    if coverage is not None:
+        t = time.perf_counter()
+        E_direct, E_indirect = antialiasing.irradiance_at_coverage(coverage, gb, E_direct,
+                                                                   E_indirect)
+        # The Normal pass keeps the shading samples' interpolated normals.
+        coverage.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[coverage.pixel]
+        gb = coverage
+        tally.add("coverage", t)
     band = compose_passes(gb, E_direct, E_indirect, frame.scene.world_radiance,
                           settings.film_transparent)
     crop = slice(rows[0] - padded[0], rows[1] - padded[0])

@@ -26,7 +26,7 @@ class IRadRenderPanel:
 
 class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
     bl_label = "Sampling"
-    properties = ("aa_samples", "interleave", "light_samples", "sequence", "seed",
+    properties = ("aa_samples", "coverage_samples", "interleave", "light_samples", "sequence", "seed",
                   "use_animated_seed")
 
 

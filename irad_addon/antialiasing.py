@@ -1,0 +1,127 @@
+"""Decoupled antialiasing: many cheap coverage samples per pixel, few shaded ones.
+
+Edges need many camera rays per pixel (the box filter integrates coverage and albedo),
+irradiance does not: it varies smoothly along a surface. So the G-buffer is traced
+twice: `aa_samples` shading samples per pixel gather light, and `coverage_samples`
+camera rays per pixel each take the irradiance of the nearest shading sample on the
+same surface, from their own pixel or else a neighbour (the split of coverage and
+shading of MSAA and of decoupled sampling, Ragan-Kelley et al. 2011).
+"""
+import numpy as np
+
+# Two samples lie on the same surface when their geometric normals agree within ~25
+# degrees and each is within this fraction of its depth of the other's tangent plane.
+SAME_SURFACE_COS = 0.9
+PLANE_TOLERANCE = 0.01
+
+# Neighbouring pixels searched when no shading sample of the own pixel matches.
+NEIGHBOURS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+
+
+def candidate_samples(gb, pixels, offsets):
+    """Indices (n, len(offsets) * gb.samples) of the shading samples of the pixels at
+    `offsets` (dy, dx) from `pixels`; -1 outside the G-buffer's rows."""
+    count = gb.width * gb.height
+    y, x = np.divmod(pixels, gb.width)
+    columns = []
+    for dy, dx in offsets:
+        ny, nx = y + dy, x + dx
+        inside = (ny >= 0) & (ny < gb.height) & (nx >= 0) & (nx < gb.width)
+        neighbour = ny * gb.width + nx
+        for s in range(gb.samples):
+            columns.append(np.where(inside, s * count + neighbour, -1))
+    return np.stack(columns, -1)
+
+
+def surface_mismatch(cov, gb, index, candidates, strict=True):
+    """Squared distances (n, K) from coverage samples `index` to their candidate
+    shading samples; inf where a candidate is not on the same surface (strict) or,
+    not strict, merely does not face the same way."""
+    safe = np.maximum(candidates, 0)
+    x_c, n_c = cov.position[index][:, None, :], cov.geo_normal[index][:, None, :]
+    x_s, n_s = gb.position[safe], gb.geo_normal[safe]
+    gap = x_c - x_s
+    tolerance = PLANE_TOLERANCE * np.minimum(cov.depth[index][:, None], gb.depth[safe])
+    cosine = np.einsum('nkc,nkc->nk', n_c, n_s)
+    same = (candidates >= 0) & gb.hit[safe] & ~gb.holdout[safe]
+    if not strict:
+        same &= cosine > 0
+    else:
+        same &= ((cosine > SAME_SURFACE_COS)
+                 & (np.abs(np.einsum('nkc,nkc->nk', gap, n_s)) <= tolerance)
+                 & (np.abs(np.einsum('nkc,nkc->nk', gap, n_c)) <= tolerance))
+    return np.where(same, np.einsum('nkc,nkc->nk', gap, gap), np.inf)
+
+
+def surface_weights(cov, gb, index, offsets, strict=True):
+    """For coverage samples `index`: (candidates (n, K), weights (n, K)) over the
+    shading samples of the pixels at `offsets`: equal weights over those on the same
+    surface (all of them for an interior pixel, so that the pixel's estimate is the
+    plain mean of its shading samples), or, not strict, the nearest one facing the
+    same way. Rows without a match have zero weights."""
+    candidates = candidate_samples(gb, cov.pixel[index], offsets)
+    cost = surface_mismatch(cov, gb, index, candidates, strict)
+    if strict:
+        weights = np.isfinite(cost).astype(np.float64)
+    else:
+        rows = np.arange(len(index))
+        best = np.argmin(cost, axis=1)
+        weights = np.zeros(cost.shape)
+        weights[rows, best] = np.isfinite(cost[rows, best])
+    total = weights.sum(1, keepdims=True)
+    return candidates, weights / np.where(total > 0, total, 1.0)
+
+
+def same_surface(position_a, normal_a, depth_a, position_b, normal_b, depth_b):
+    """bool (n,): pairs of hit samples on the same surface (the test of
+    surface_mismatch, for one candidate each)."""
+    gap = position_a - position_b
+    tolerance = PLANE_TOLERANCE * np.minimum(depth_a, depth_b)
+    return ((np.einsum('nc,nc->n', normal_a, normal_b) > SAME_SURFACE_COS)
+            & (np.abs(np.einsum('nc,nc->n', gap, normal_a)) <= tolerance)
+            & (np.abs(np.einsum('nc,nc->n', gap, normal_b)) <= tolerance))
+
+
+def uniform_pixels(gb):
+    """bool (pixels,): every shading sample of the pixel hits one and the same surface,
+    so a coverage sample on it takes the pixel's mean irradiance (most pixels)."""
+    count = gb.width * gb.height
+    lit = (gb.hit & ~gb.holdout).reshape(gb.samples, count)
+    uniform = lit.all(0)
+    first = np.arange(count)
+    for s in range(1, gb.samples):
+        other = s * count + first
+        uniform &= same_surface(gb.position[first], gb.geo_normal[first], gb.depth[first],
+                                gb.position[other], gb.geo_normal[other], gb.depth[other])
+    return uniform
+
+
+def irradiance_at_coverage(cov, gb, *irradiances):
+    """Each (S, 3) shading-sample irradiance carried to the coverage samples that see
+    a surface: the mean over the shading samples on the same surface in their own
+    pixel, else in the neighbouring pixels; a sub-pixel sliver no shading sample lies
+    on takes the nearest one facing the same way; misses and holdouts get zero."""
+    out = [np.zeros((len(cov.hit), 3)) for _ in irradiances]
+    todo = np.flatnonzero(cov.hit & ~cov.holdout)
+    # Fast path: a pixel whose shading samples share one surface, and coverage samples
+    # on that surface (the first shading sample stands for it).
+    count = gb.width * gb.height
+    pixel = cov.pixel[todo]
+    quick = uniform_pixels(gb)[pixel]
+    quick[quick] = same_surface(cov.position[todo[quick]], cov.geo_normal[todo[quick]],
+                                cov.depth[todo[quick]], gb.position[pixel[quick]],
+                                gb.geo_normal[pixel[quick]], gb.depth[pixel[quick]])
+    for E, E_cov in zip(irradiances, out):
+        pixel_mean = E.reshape(gb.samples, count, 3).mean(0)
+        E_cov[todo[quick]] = pixel_mean[pixel[quick]]
+    todo = todo[~quick]
+    all_pixels = [(0, 0)] + NEIGHBOURS
+    for offsets, strict in (([(0, 0)], True), (NEIGHBOURS, True), (all_pixels, False)):
+        if len(todo) == 0:
+            break
+        candidates, weights = surface_weights(cov, gb, todo, offsets, strict)
+        safe = np.maximum(candidates, 0)
+        for E, E_cov in zip(irradiances, out):
+            E_cov[todo] = np.einsum('nk,nkc->nc', weights, E[safe])
+        todo = todo[weights.sum(1) == 0]
+    return out
