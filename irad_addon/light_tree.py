@@ -41,6 +41,10 @@ class LightTree:
     count: np.ndarray       # int64 (K,)
     order: np.ndarray       # int64 (M,)
     scene_diagonal: float   # the metric's c
+    # Intensity-weighted covariances of the VPLs' positions and normals under each
+    # node (xx, yy, zz, xy, xz, yz): the spread of what a random representative sees.
+    position_covariance: np.ndarray  # float64 (K, 6)
+    normal_covariance: np.ndarray    # float64 (K, 6)
 
     @property
     def size(self):
@@ -52,15 +56,17 @@ class LightTree:
 
     @cached_property
     def bound_columns(self):
-        """float32 (17, K) node data for batched bound evaluation (lightcuts): rows
+        """float32 (29, K) node data for batched bound evaluation (lightcuts): rows
         are centre xyz, radius, lo xyz, hi xyz, axis xyz, cos half, sin half,
-        intensity / pi and (as 0/1) is-inner. Row-major so a gather is contiguous."""
+        largest channel of flux / pi, (as 0/1) is-inner, then the position and
+        normal covariances. Row-major so a gather is contiguous."""
         centre = 0.5 * (self.lo + self.hi)
         radius = 0.5 * np.linalg.norm(self.hi - self.lo, axis=1)
         return np.ascontiguousarray(np.concatenate([
             centre.T, radius[None], self.lo.T, self.hi.T, self.axis.T,
             np.cos(self.half_angle)[None], np.sin(self.half_angle)[None],
-            self.intensity[None] / np.pi, (self.left >= 0)[None]]).astype(np.float32))
+            self.flux.max(1)[None] / np.pi, (self.left >= 0)[None],
+            self.position_covariance.T, self.normal_covariance.T]).astype(np.float32))
 
     def metric(self, nodes=slice(None)):
         """The cluster metric of Walter 2005 sec. 4.1 (zero for single VPLs)."""
@@ -226,6 +232,32 @@ def _leaf_ranges(left, right, m, rounds):
     return start, count, order
 
 
+def _outer6(x):
+    """The 6 distinct entries (xx, yy, zz, xy, xz, yz) of x x^T per row of x (n, 3)."""
+    return np.stack([x[:, 0] ** 2, x[:, 1] ** 2, x[:, 2] ** 2,
+                     x[:, 0] * x[:, 1], x[:, 0] * x[:, 2], x[:, 1] * x[:, 2]], 1)
+
+
+def weighted_covariance(x, weight, left, right, rounds):
+    """Per node, the covariance (K, 6) of the rows x (M, 3) of its leaves weighted
+    by `weight` (K,) (node weight = sum of its leaves'), from moments summed
+    bottom-up round by round; about the mean of all x so float cancellation
+    stays small. Zero where a node weighs nothing."""
+    m = len(x)
+    x = x - x.mean(0) if m else x
+    first = np.zeros((len(left), 3))
+    second = np.zeros((len(left), 6))
+    first[:m] = weight[:m, None] * x
+    second[:m] = weight[:m, None] * _outer6(x)
+    for a, b in rounds:
+        first[a:b] = first[left[a:b]] + first[right[a:b]]
+        second[a:b] = second[left[a:b]] + second[right[a:b]]
+    total = np.where(weight > 0, weight, 1.0)[:, None]
+    covariance = second / total - _outer6(first / total)
+    covariance[:, :3] = np.maximum(covariance[:, :3], 0.0)
+    return np.where(weight[:, None] > 0, covariance, 0.0)
+
+
 def build_light_tree(position, normal, flux, seed=0):
     """The light tree over M VPLs (arrays (M, 3)); `seed` drives the choice of
     representatives. M = 0 gives an empty tree."""
@@ -242,11 +274,14 @@ def build_light_tree(position, normal, flux, seed=0):
         order = np.argsort(morton_codes(position), kind='stable')
         rounds = _agglomerate(nodes, order, c, np.random.default_rng(seed))
     start, count, order = _leaf_ranges(nodes.left, nodes.right, m, rounds)
+    position_covariance, normal_covariance = (
+        weighted_covariance(x, nodes.intensity, nodes.left, nodes.right, rounds)
+        for x in (position, normal))
     return LightTree(nodes.left, nodes.right, nodes.flux, nodes.intensity,
                      nodes.representative, np.ascontiguousarray(nodes.lo.T),
                      np.ascontiguousarray(nodes.hi.T), np.ascontiguousarray(nodes.axis.T),
                      nodes.half,
-                     start, count, order, c)
+                     start, count, order, c, position_covariance, normal_covariance)
 
 
 @dataclass

@@ -62,23 +62,19 @@ def relative_difference(E, reference):
 def test_lightcuts_match_the_exhaustive_gather(core, occluder):
     frame, vpls, points, dmin2 = box_scene(core, occluder, 32, 1000)
     reference = exhaustive(core, frame, vpls, points, dmin2)
-    E, cut = lightcut(core, frame, vpls, points, dmin2, error=0.02)
-    diff = relative_difference(E, reference)
-    # Walter's criterion bounds each cluster's error by 2% of the estimate; a cut
-    # sums tens of such clusters with random signs (random representatives), so the
-    # per-point error is ~2% typically and a few times that in the tail. Measured:
-    # median 1.2% / 1.9%, 99th percentile 4.5% / 7% (box / occluder), while a cut
-    # uses 1/10 of the VPLs. The image total is unbiased.
-    assert np.median(diff) <= 0.02
-    assert np.quantile(diff, 0.99) <= 0.1
-    assert abs(E.sum() / reference.sum() - 1) < 0.01
-    assert cut.mean() < vpls.count / 8
-    # A smaller error bound gives a closer result: the error parameter controls it.
-    E_fine, cut_fine = lightcut(core, frame, vpls, points, dmin2, error=0.005)
-    diff_fine = relative_difference(E_fine, reference)
-    assert np.quantile(diff_fine, 0.99) <= 0.04
-    assert np.median(diff_fine) <= 0.5 * np.median(diff)
-    assert cut_fine.mean() > cut.mean()
+    diff, cut = {}, {}
+    for error in (0.05, 0.02):
+        E, cut[error] = lightcut(core, frame, vpls, points, dmin2, error=error)
+        diff[error] = relative_difference(E, reference)
+        # Issue 6: the per-pixel relative difference is within the error bound on at
+        # least 99% of pixels. Measured p99: 2.5% / 3.0% at 0.05, 1.4% / 1.7% at 0.02
+        # (box / occluder), with cuts of 320 / 460 and 480 / 690 of 2454 VPLs.
+        assert np.quantile(diff[error], 0.99) <= error, (error, np.quantile(diff[error], 0.99))
+        assert abs(E.sum() / reference.sum() - 1) < 0.01
+        assert cut[error].mean() < vpls.count / 3
+    # The error parameter controls it: a smaller error, a closer result, more rays.
+    assert np.median(diff[0.02]) < 0.7 * np.median(diff[0.05])
+    assert cut[0.02].mean() > cut[0.05].mean()
 
 
 def test_zero_error_refines_to_the_exact_gather(core):
@@ -94,13 +90,15 @@ def test_cut_size_grows_sublinearly_with_the_vpl_count(core):
     cuts = {}
     for particles in (400, 40000):
         frame, vpls, points, dmin2 = box_scene(core, True, 16, particles)
-        E, cut = lightcut(core, frame, vpls, points, dmin2)
+        # max_cut far above the cuts, so that it does not hide their growth.
+        E, cut = lightcut(core, frame, vpls, points, dmin2, max_cut=20000)
         assert np.isfinite(E).all() and (E >= 0).all()
         cuts[vpls.count] = cut.mean()
     small, large = sorted(cuts)
     assert large > 80 * small                  # ~1k and ~100k VPLs
     # One shadow ray per cut node: 100x the VPLs must cost at most 10x the rays
-    # (measured: ~200 -> ~320 rays per point).
+    # (measured: ~440 -> ~2140 rays per point; with the default max_cut 1000,
+    # 440 -> 996).
     assert cuts[large] <= 10 * cuts[small], cuts
 
 
@@ -125,24 +123,71 @@ def test_no_vpls_or_no_points_give_zero(core):
     assert E.shape == (0, 3) and cut.shape == (0,)
 
 
+def vpl_terms(vpls, members, P, N, G, dmin2):
+    """cos_x cos_y / max(d^2, dmin^2) of each member VPL at point P, 0 where it does
+    not light P (the exact per-VPL term of gather.vpl_irradiance_chunk, no shadow)."""
+    d = vpls.position[members] - P
+    d2 = (d * d).sum(1)
+    cos_x = d @ N / np.sqrt(d2)
+    cos_y = -(d * vpls.normal[members]).sum(1) / np.sqrt(d2)
+    lit = (cos_x > 0) & (cos_y > 0) & (d @ G > 0)
+    return np.where(lit, cos_x * cos_y / np.maximum(d2, dmin2), 0.0)
+
+
 def test_cluster_bounds_hold_for_every_vpl(core):
     lt, lc = core.light_tree, core.lightcuts
     frame, vpls, (P, N, G), dmin2 = box_scene(core, True, 16, 1000)
     tree = lt.build_light_tree(vpls.position, vpls.normal, vpls.flux)
     rng = np.random.default_rng(0)
     inner = np.flatnonzero(tree.left >= 0)
-    point = rng.integers(len(P), size=400)
-    node = rng.choice(inner, 400)
-    bound = lc.cluster_bound(tree.bound_columns, node, P[point].T.astype(np.float32),
-                             N[point].T.astype(np.float32), dmin2)
-    for p, k, b in zip(point, node, bound):
+    point = rng.integers(len(P), size=2000)
+    node = rng.choice(inner, 2000)
+    columns = (x[point].T.astype(np.float32) for x in (P, N, G))
+    Pc, Nc, Gc = columns
+    t = np.take(tree.bound_columns, node, axis=1)
+    upper, lower = lc.cluster_range(t, Pc, Nc, Gc, dmin2)
+    bound, deviation = lc.cluster_deviation(tree.bound_columns, node, Pc, Nc, Gc, dmin2)
+    np.testing.assert_array_equal(bound, upper)
+    np.testing.assert_array_equal(lc.cluster_bound(tree.bound_columns, node, Pc, Nc, dmin2),
+                                  lc.cluster_range(t, Pc, Nc, Nc, dmin2)[0])
+    ratio = []
+    for i, (p, k) in enumerate(zip(point, node)):
         members = tree.order[tree.start[k]:tree.start[k] + tree.count[k]]
-        d = vpls.position[members] - P[p]
-        d2 = (d * d).sum(1)
-        cos_x = np.maximum(d @ N[p], 0) / np.sqrt(d2)
-        cos_y = np.maximum(-(d * vpls.normal[members]).sum(1), 0) / np.sqrt(d2)
-        largest = tree.intensity[k] / np.pi * (cos_x * cos_y / np.maximum(d2, dmin2)).max()
-        assert largest <= b * (1 + 1e-5), (p, k)
+        f = vpl_terms(vpls, members, P[p], N[p], G[p], dmin2)
+        scale = tree.flux[k].max() / np.pi
+        # Every channel of the unshadowed cluster, and of any representative's
+        # estimate, lies in [lower, upper]: a bound below the true value is a bug.
+        exact = vpls.flux[members].T @ f / np.pi
+        assert exact.max() <= upper[i] * (1 + 1e-5) + 1e-12, (p, k)
+        assert scale * f.max() <= upper[i] * (1 + 1e-5) + 1e-12, (p, k)
+        assert scale * f.min() >= lower[i] * (1 - 1e-5) - 1e-12, (p, k)
+        assert 0 <= deviation[i] <= 0.5 * (upper[i] - lower[i]) * (1 + 1e-5) + 1e-12
+        # The deviation estimates the standard deviation of scale * f(representative)
+        # with the representative drawn by intensity.
+        weight = tree.intensity[members] / tree.intensity[k]
+        spread = scale * np.sqrt(max(weight @ f ** 2 - (weight @ f) ** 2, 0))
+        if lower[i] > 0 and spread > 0:
+            ratio.append(deviation[i] / spread)
+    assert len(ratio) > 100
+    assert 0.7 < np.median(ratio) < 2 and np.quantile(ratio, 0.1) > 0.4, np.quantile(ratio, [0.1, 0.5, 0.9])
+
+
+def test_tree_covariances_are_those_of_the_members(core):
+    lt = core.light_tree
+    rng = np.random.default_rng(4)
+    position = rng.random((500, 3)) * [3, 2, 1]
+    normal = rng.normal(size=(500, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    flux = rng.random((500, 3)) + 0.1
+    tree = lt.build_light_tree(position, normal, flux)
+    pick = [0, 7, 13, 420, 700, 950, tree.root]
+    for k in pick:
+        members = tree.order[tree.start[k]:tree.start[k] + tree.count[k]]
+        w = flux[members].mean(1)
+        for x, cov in ((position, tree.position_covariance), (normal, tree.normal_covariance)):
+            c = np.cov(x[members].T, aweights=w, bias=True) if len(members) > 1 else np.zeros((3, 3))
+            expected = [c[0, 0], c[1, 1], c[2, 2], c[0, 1], c[0, 2], c[1, 2]]
+            np.testing.assert_allclose(cov[k], expected, rtol=1e-9, atol=1e-12)
 
 
 def test_lightcuts_in_the_renderer_match_the_exhaustive_gather(addon):
