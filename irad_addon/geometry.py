@@ -28,11 +28,13 @@ def nondegenerate(triangles, extent):
 
 
 def surface_points(triangles, triangle, barycentric):
-    """World positions from barycentrics: more precise than origin + t * direction."""
-    t = triangles[triangle].astype(np.float64)
-    u = barycentric[:, :1].astype(np.float64)
-    v = barycentric[:, 1:2].astype(np.float64)
-    return t[:, 0] + u * (t[:, 1] - t[:, 0]) + v * (t[:, 2] - t[:, 0])
+    """World positions from barycentrics: more precise than origin + t * direction.
+    The offset within the triangle is float32 (its error scales with the triangle,
+    not with its distance from the origin); the corner it is added to is float64."""
+    t = triangles[triangle]
+    u, v = barycentric[:, :1], barycentric[:, 1:2]
+    within = u * (t[:, 1] - t[:, 0]) + v * (t[:, 2] - t[:, 0])
+    return t[:, 0].astype(np.float64) + within
 
 
 def shading_normals(corner_normals, triangle, barycentric, fallback):
