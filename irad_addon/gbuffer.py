@@ -5,6 +5,7 @@ import numpy as np
 
 from . import camera as camera_rays_module
 from . import geometry
+from .lights import AreaEmitter
 
 
 @dataclass
@@ -106,11 +107,13 @@ MAX_MIRROR_BOUNCES = 8
 def follow_mirrors(frame, points, directions, length):
     """Continue rays that hit perfect mirrors along their reflection (Keller 1997
     sec. 4.2 handles the light side; the camera side is a specular chain): `points`
-    are updated in place to the first non-mirror hit. Returns the throughput (n, 3)
-    (product of mirror reflectances) and the path length (n,)."""
+    are updated in place to the first non-mirror hit, their emission including the
+    lights seen in the mirrors. Returns the throughput (n, 3) (product of mirror
+    reflectances) and the path length (n,)."""
     throughput = np.ones((len(points.hit), 3))
     length = np.asarray(length, np.float64).copy()
     directions = np.array(directions, np.float64)
+    seen = np.zeros((len(points.hit), 3))   # lights in the mirrors, times the throughput
     is_mirror = frame.is_mirror
     for _ in range(MAX_MIRROR_BOUNCES + 1):
         on_mirror = np.flatnonzero(points.hit & is_mirror[points.triangle])
@@ -123,12 +126,44 @@ def follow_mirrors(frame, points, directions, length):
         d = directions[on_mirror]
         reflected = d - 2 * np.einsum('ij,ij->i', d, n)[:, None] * n
         throughput[on_mirror] *= frame.mirror[points.triangle[on_mirror]]
-        after = trace_surfaces(frame, points.position[on_mirror] + n * frame.offset(), reflected)
+        origin = points.position[on_mirror] + n * frame.offset()
+        after = trace_surfaces(frame, origin, reflected)
+        seen[on_mirror] += throughput[on_mirror] * light_radiance_along(
+            frame.emitters, origin, reflected, after.distance)
         length[on_mirror] += after.distance
         for name in SurfacePoints.__dataclass_fields__:
             getattr(points, name)[on_mirror] = getattr(after, name)
         directions[on_mirror] = reflected
+    # The passes multiply emission by the whole throughput: divide out what the
+    # mirrors after the light add (lost where a later mirror reflects nothing).
+    reflected_any = throughput > 0
+    points.emission += np.where(reflected_any, seen / np.where(reflected_any, throughput, 1), 0)
     return throughput, length
+
+
+def light_radiance_along(emitters, origins, directions, tfar):
+    """Radiance (n, 3) of the area lights that rays origin + t direction, 0 < t < tfar,
+    pass through from their emitting side. Lights do not block rays: Cycles adds a
+    light's radiance to what lies behind it (docs/radiometry.md); camera rays do not
+    see lights, rays reflected by mirrors do (the lights' glossy visibility)."""
+    L = np.zeros((len(origins), 3))
+    for emitter in emitters:
+        if isinstance(emitter, AreaEmitter) and emitter.area > 0:
+            L[area_light_hit(emitter, origins, directions, tfar)] += emitter.radiance
+    return L
+
+
+def area_light_hit(light, origins, directions, tfar):
+    """bool (n,): rays that cross the front of a rectangle or ellipse area light."""
+    facing = directions @ light.normal
+    safe = np.where(facing < 0, facing, -1.0)
+    t = (light.center - origins) @ light.normal / safe
+    offset = origins + t[:, None] * directions - light.center
+    # Coordinates along the half-extent axes, in [-1, 1] on the light.
+    a = offset @ light.axis_u / (light.axis_u @ light.axis_u)
+    b = offset @ light.axis_v / (light.axis_v @ light.axis_v)
+    inside = (a * a + b * b <= 1) if light.ellipse else (np.abs(a) <= 1) & (np.abs(b) <= 1)
+    return (facing < 0) & (t > 0) & (t < tfar) & inside
 
 
 def take_points(points, index):
