@@ -68,13 +68,16 @@ class GatherProbe:
     def wrap_tracer(self, tracer):
         original = type(tracer).occluded.__get__(tracer)
 
-        def occluded(origins, directions, tfar, threads=True):
+        def occluded(origins, directions, tfar, threads=True, local=False):
             if self.recording and self._in_gather:
-                batch = (np.array(origins, np.float32), np.array(directions, np.float32),
+                # Recorded in the tracer's local frame, as Embree sees them.
+                start = (np.array(origins, np.float32) if local
+                         else tracer.to_local(origins))
+                batch = (start, np.array(directions, np.float32),
                          np.broadcast_to(np.asarray(tfar, np.float32), (len(origins),)).copy())
                 with self._lock:
                     self.batches.append(batch)
-            return original(origins, directions, tfar, threads=threads)
+            return original(origins, directions, tfar, threads=threads, local=local)
 
         tracer.occluded = occluded
 
@@ -132,7 +135,8 @@ def measure_config(core, data, name, fields, target_rays):
         gather_seconds = min(probe.gather_seconds[-REPEATS:])
         pairs = probe.pairs[-1]
     rays = sum(len(b[0]) for b in batches)
-    triangles = cache._tracer.triangles
+    tracer = cache._tracer
+    triangles = tracer.to_local(tracer.triangles.reshape(-1, 3)).reshape(tracer.triangles.shape)
     workers = core.rays.worker_count()
     raw1 = min(raw_embree_seconds(triangles, batches, 1)[0] for _ in range(REPEATS))
     raws = [raw_embree_seconds(triangles, batches, workers) for _ in range(REPEATS)]
