@@ -1,29 +1,44 @@
 """Metropolis Instant Radiosity (Segovia, Iehl, Peroche 2007).
 
 A state is a light path in primary sample space: u in [0,1)^D picks the emitter, the
-particle's start and every bounce. f(u) = P'(u), the power its VPLs bring to the camera
-pilot points (plus a small share of its own power, so that no path that lights the
-image has f = 0). Parallel Metropolis-Hastings chains, multiple-try by default (Liu,
-Liang & Wong 2000), draw n paths with density f / b; every VPL of a drawn path re-emits
-Phi_1 * b / (n f(u)), i.e. P_c / (n P') as in Segovia 2007 sec. 3.2, with b = P_c
+particle's start and every bounce. Its k-th VPL has f(u, k) = the power it brings to
+the camera pilot points, each weighted by the share of its radiance that is indirect
+(relative_pilot), plus a small share of its own power (so that no VPL that lights the
+image has f = 0); the path has f(u) = sum_k f(u, k). Parallel Metropolis-Hastings
+chains (or multiple-try ones, Liu, Liang & Wong 2000: TRIES) draw paths with density
+f(u) / b; each drawn path gives ONE VPL, its k-th with probability f(u, k) / f(u), so
+no budget goes to the path's VPLs the camera never sees. Each of the n VPLs re-emits
+Phi_k b / (n f(u, k)), i.e. P_c / (n P') as in Segovia 2007 sec. 3.2, with b = P_c
 estimated first from uniformly sampled (bootstrap) paths. The chains start from seeds
 resampled from the bootstrap set in proportion to f, so they start near equilibrium.
 """
+from dataclasses import replace
+
 import numpy as np
 
-from . import vpl
+from . import gather, vpl
 from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
 
-PILOT_CAMERA_POINTS = 64
-TRIES = 3                 # multiple-try Metropolis; 1 = plain Metropolis-Hastings
+# Measured on two rooms (tests/test_variants.py, 128 particles), mean relMSE over seeds
+# 1-3: 64 -> 256 pilot points 0.049 -> 0.039; 8 -> 2-4 steps per chain 0.049 -> 0.033
+# (fresh seeds beat long correlated chains); 1024 -> 4096 bootstrap paths: b's std
+# 8% -> 4%; 3 tries -> 1 with 3x the states: same error, half the time.
+PILOT_CAMERA_POINTS = 256
+TRIES = 1                 # multiple-try Metropolis; 1 = plain Metropolis-Hastings
 LARGE_STEP = 0.5          # probability of an independent (uniform) proposal
 SMALL_STEP = 0.02         # std. dev. of the wrapped Gaussian perturbation
-STEPS_PER_CHAIN = 8
+STEPS_PER_CHAIN = 4
+THINNING = 3              # chain states recorded per VPL kept (PathStore.vpls)
 DEFENSIVE = 0.05          # share of f given by the path's own power
 # f clamps distances at this many mean VPL spacings: a smooth target whose ratio to
 # the VPL's true contribution to any pixel stays bounded.
-TARGET_CLAMP = 2.0
-BOOTSTRAP = 8             # uniform bootstrap paths per path of the budget
+TARGET_CLAMP = 1.2
+# Uniform bootstrap paths: per path of the budget, and at least BOOTSTRAP_MIN, since
+# b's error (which scales the whole image) depends on their number, not on the budget.
+BOOTSTRAP = 8
+BOOTSTRAP_MIN = 4096
+SCOUT = 512               # uniform paths that estimate the pilot's mean indirect radiance
+SCOUT_LIGHT_SAMPLES = 16  # light samples per pilot point for its direct radiance
 _EMIT_DIMS = 6
 _BOUNCE_DIMS = 3
 
@@ -58,15 +73,18 @@ class PathSpace:
         return vpl.follow_paths(self.frame, origin, direction, flux, u[:, 1 + _EMIT_DIMS:],
                             self.max_bounces)
 
-    def evaluate(self, u):
-        """(f per path, VPLs, owner): f = P'(u) + defensive share of the path's power."""
-        vpls, owner = self.trace(u)
+    def vpl_target(self, vpls):
+        """f per VPL: the power it brings to the pilot + a defensive share of its own."""
         transfer = np.minimum(pair_transfer(self.frame, self.pilot, vpls.position, vpls.normal),
                               self.cap)
         seen = camera_importance(self.pilot, transfer, vpls.flux)
-        own = luminance(vpls.flux)
-        f = np.bincount(owner, seen + self.defensive_scale * own, minlength=len(u))
-        return f, vpls, owner
+        return seen + self.defensive_scale * luminance(vpls.flux)
+
+    def evaluate(self, u):
+        """(f per path, f per VPL, VPLs, owner): a path's f is the sum of its VPLs' f."""
+        vpls, owner = self.trace(u)
+        f_vpl = self.vpl_target(vpls)
+        return np.bincount(owner, f_vpl, minlength=len(u)), f_vpl, vpls, owner
 
 
 def mutate(u, rng):
@@ -77,35 +95,62 @@ def mutate(u, rng):
 
 
 class PathStore:
-    """Every evaluated path's f and VPLs, under a global path id."""
+    """Every evaluated path's f, and its VPLs with their own f, under a global path id."""
 
     def __init__(self):
         self.batches, self.f, self.count = [], [], 0
 
-    def add(self, f, vpls, owner):
+    def add(self, f, f_vpl, vpls, owner):
         ids = self.count + np.arange(len(f))
-        self.batches.append((vpls, owner + self.count))
+        self.batches.append((vpls, owner + self.count, f_vpl))
         self.f.append(f)
         self.count += len(f)
         return ids
 
-    def vpls(self, recorded, normalisation):
-        """VPLs of the recorded path ids: flux Phi_1 * times * b / (n f), n = len(recorded)
-        (Segovia 2007: each drawn path brings P_c / n to the camera)."""
-        times = np.bincount(recorded, minlength=self.count)
-        f = np.concatenate(self.f)
-        scale = np.where(times > 0, times * normalisation / (len(recorded) * np.maximum(f, 1e-300)),
-                         0.0)
-        vpls = vpl.VPLs(*[np.concatenate([b[0].__dict__[name] for b in self.batches])
-                          for name in ('position', 'normal', 'flux', 'bounce')])
+    def vpls(self, recorded, normalisation, count, rng):
+        """At most `count` VPLs from the recorded paths: one VPL (u, k) per recorded path
+        (density f(u, k) / b), then `draws` of these kept by systematic sampling along a
+        space-filling curve, each with probability draws / recorded (spread out, not
+        clumped; repeats merge). A kept VPL re-emits Phi_k b / (draws f(u, k)) (Segovia
+        2007 sec. 3.2: each draw brings P_c / draws to the camera)."""
         owner = np.concatenate([b[1] for b in self.batches])
-        keep = scale[owner] > 0
-        vpls = vpls.subset(keep)
-        vpls.flux = vpls.flux * scale[owner[keep], None]
+        order = np.argsort(owner, kind='stable')
+        owner, f_vpl = owner[order], np.concatenate([b[2] for b in self.batches])[order]
+        vpls = vpl.VPLs(*[np.concatenate([b[0].__dict__[name] for b in self.batches])[order]
+                          for name in ('position', 'normal', 'flux', 'bounce')])
+        pick = vpl_of_each_path(owner, f_vpl, recorded, rng)
+        pick = pick[np.argsort(morton_code(vpls.position[pick]), kind='stable')]
+        draws = min(len(pick), count)
+        kept = pick[((rng.random() + np.arange(draws)) * len(pick) / draws).astype(np.int64)]
+        index, times = np.unique(kept, return_counts=True)
+        vpls = vpls.subset(index)
+        vpls.flux = vpls.flux * (times * normalisation / (draws * f_vpl[index]))[:, None]
         return vpls
 
 
-def run_chains(space, state, f_state, state_id, steps, store, rng, tries=TRIES):
+def vpl_of_each_path(owner, f_vpl, paths, rng):
+    """For each path id in `paths`, one of its VPLs (rows of `owner`, sorted by path)
+    drawn with probability f(u, k) / f(u)."""
+    first = np.searchsorted(owner, paths)
+    last = np.searchsorted(owner, paths, side='right') - 1
+    cumulative = np.cumsum(f_vpl)
+    below = cumulative[first] - f_vpl[first]
+    target = below + rng.random(len(paths)) * (cumulative[last] - below)
+    return np.clip(np.searchsorted(cumulative, target, side='right'), first, last)
+
+
+def morton_code(position, bits=10):
+    """Z-order index of points in their bounding box: near in space, near in order."""
+    lo, hi = position.min(0), position.max(0)
+    cell = ((position - lo) / np.maximum(hi - lo, 1e-30) * ((1 << bits) - 1)).astype(np.int64)
+    code = np.zeros(len(position), np.int64)
+    for bit in range(bits):
+        for axis in range(3):
+            code |= ((cell[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return code
+
+
+def run_chains(space, state, f_state, state_id, steps, store, rng, tries):
     """Multiple-try Metropolis (Liu, Liang & Wong 2000, symmetric proposals; tries = 1 is
     plain Metropolis-Hastings) on all chains at once. Returns the path id of every
     chain's state after every step."""
@@ -113,8 +158,8 @@ def run_chains(space, state, f_state, state_id, steps, store, rng, tries=TRIES):
     recorded = []
     for _ in range(steps):
         proposals = np.concatenate([mutate(state, rng) for _ in range(tries)])
-        f_prop, vpls, owner = space.evaluate(proposals)
-        prop_id = store.add(f_prop, vpls, owner)
+        f_prop, *path = space.evaluate(proposals)
+        prop_id = store.add(f_prop, *path)
         f_try = f_prop.reshape(tries, chains)
         total = f_try.sum(0)
         # Pick one try per chain with probability f(y_j) / sum_j f(y_j).
@@ -133,8 +178,27 @@ def run_chains(space, state, f_state, state_id, steps, store, rng, tries=TRIES):
     return np.concatenate(recorded)
 
 
+def relative_pilot(frame, pilot, max_bounces, cap, rng):
+    """The pilot with each point's albedo weighted by Lbar / (L_direct + Lbar): f then
+    counts the power a VPL brings relative to the radiance already there (the image's
+    relative error), so points lit directly do not draw the VPLs away from those that
+    only VPLs light. Lbar = mean indirect radiance over the pilot, from SCOUT paths
+    (any positive weight keeps the estimate unbiased)."""
+    from .bidirectional import surface_buffer
+    points = surface_buffer(pilot.position, pilot.normal, pilot.geo_normal, pilot.albedo)
+    E = gather.direct_irradiance(frame, points, SCOUT_LIGHT_SAMPLES, rng)
+    direct = luminance(pilot.albedo * E) / np.pi
+    space = PathSpace(frame, pilot, max_bounces, cap)
+    indirect = space.evaluate(rng.random((SCOUT, space.dims)))[0].mean() / pilot.count
+    if indirect <= 0:   # the scout missed the rare paths: keep absolute power
+        return pilot
+    weight = indirect / np.maximum(direct + indirect, 1e-300)
+    return replace(pilot, albedo=pilot.albedo * weight[:, None])
+
+
 def place_metropolis(frame, gb, settings, rng):
-    """(VPLs, info): `settings.particles` paths drawn by the chains."""
+    """(VPLs, info): as many VPLs as `settings.particles` classic particles leave, drawn
+    by the chains."""
     from .render import clamp_distance  # render dispatches to us: import at call time
     pilot = camera_pilot(gb, PILOT_CAMERA_POINTS, rng)
     n = max(1, settings.particles)
@@ -143,28 +207,31 @@ def place_metropolis(frame, gb, settings, rng):
     typical = vpl.VPLs.empty()
     typical.position = np.zeros((3 * n, 3))   # only its count sets the clamp scale
     cap = 1.0 / max(TARGET_CLAMP * clamp_distance(frame, typical, 1.0), 1e-6) ** 2
+    pilot = relative_pilot(frame, pilot, settings.max_bounces, cap, rng)
     space = PathSpace(frame, pilot, settings.max_bounces, cap)
     store = PathStore()
     # Bootstrap: uniform paths estimate b = P_c and provide the chains' seeds.
-    boot = rng.random((BOOTSTRAP * n, space.dims))
-    f_boot, vpls, owner = space.evaluate(boot)
-    own = np.bincount(owner, luminance(vpls.flux), minlength=len(boot))
+    boot = rng.random((max(BOOTSTRAP * n, BOOTSTRAP_MIN), space.dims))
+    f_boot, f_vpl, vpls, owner = space.evaluate(boot)
+    own_vpl = luminance(vpls.flux)
+    own = np.bincount(owner, own_vpl, minlength=len(boot))
     if f_boot.sum() <= 0:
         return vpl.trace_vpls(frame, n, settings.max_bounces, seed=settings.seed), {
             'metropolis': "no light path reaches the camera pilot: classic VPLs"}
     space.defensive_scale = DEFENSIVE * f_boot.mean() / max(own.mean(), 1e-300)
     f_boot = f_boot + space.defensive_scale * own
-    boot_id = store.add(f_boot, vpls, owner)
+    boot_id = store.add(f_boot, f_vpl + space.defensive_scale * own_vpl, vpls, owner)
     normalisation = f_boot.mean()                         # b = integral of f over [0,1)^D
-    # As many VPLs as classic IR would place: n paths of the chain's mean length.
-    per_path = np.bincount(owner, minlength=len(boot))
-    n = max(1, int(round(n * per_path.mean() / max((f_boot @ per_path) / f_boot.sum(), 1e-9))))
-    chains = max(1, -(-n // STEPS_PER_CHAIN))
-    cdf = np.cumsum(f_boot) / f_boot.sum()
-    seeds = np.minimum(np.searchsorted(cdf, rng.random(chains), side='right'), len(boot) - 1)
+    # As many VPLs as classic IR would place: one per drawn path.
+    n = max(1, int(round(n * len(owner) / len(boot))))
+    states = int(np.ceil(THINNING * n))
+    chains = max(1, -(-states // STEPS_PER_CHAIN))
+    cdf = np.cumsum(f_boot) / f_boot.sum()   # seeds: systematic resampling by f
+    seeds = np.minimum(np.searchsorted(cdf, (rng.random() + np.arange(chains)) / chains,
+                                       side='right'), len(boot) - 1)
     recorded = run_chains(space, boot[seeds], f_boot[seeds], boot_id[seeds],
-                          -(-n // chains), store, rng)
-    vpls = store.vpls(recorded, normalisation)
+                          -(-states // chains), store, rng, TRIES)[:states]
+    vpls = store.vpls(recorded, normalisation, n, rng)
     return vpls, {'chains': chains, 'paths': int(len(recorded)),
                   'acceptance': float(np.mean(recorded[chains:] != recorded[:-chains]))
                   if len(recorded) > chains else 0.0}

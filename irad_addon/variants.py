@@ -27,7 +27,8 @@ class VariantState:
     def observe(self, frame):
         """Record this frame; True when the geometry stayed and the lights changed."""
         geometry_key = frame.tracer.fingerprint
-        lights_key = hashlib.blake2b(repr(frame.scene.lights).encode(), digest_size=16).digest()
+        lights = [*frame.scene.lights, *frame.scene.portals]
+        lights_key = hashlib.blake2b(repr(lights).encode(), digest_size=16).digest()
         animated = (self.frames > 0 and geometry_key == self.geometry_key
                     and lights_key != self.lights_key)
         self.geometry_key, self.lights_key = geometry_key, lights_key
