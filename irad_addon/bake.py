@@ -61,17 +61,23 @@ def prepare(scene, depsgraph):
     return frame
 
 
-def trace_vpls(frame, settings, cancel=None):
-    """The one call site that turns a prepared frame into VPLs for the chosen variant."""
-    return variants.vpls_for_frame(frame, settings, cancel=cancel)[0]
+def trace_vpls(frame, settings, cancel=None, state=None):
+    """The one call site that turns a prepared frame into VPLs for the chosen variant;
+    `state` (a variants.VariantState) carries incremental IR across animation frames."""
+    return variants.vpls_for_frame(frame, settings, state, cancel)[0]
 
 
-def trace(scene, frame, cancel=None):
+def new_variant_state():
+    """State shared by the frames of one animation bake (operators stay bpy-thin)."""
+    return variants.VariantState()
+
+
+def trace(scene, frame, cancel=None, state=None):
     settings = render_settings(scene)
     if settings.max_bounces < 1:
         raise BakeError("Max Bounces is 0: there is no bounce light to bake")
     t0 = time.perf_counter()
-    vpls = trace_vpls(frame, settings, cancel)
+    vpls = trace_vpls(frame, settings, cancel, state)
     seconds = time.perf_counter() - t0
     if vpls.count == 0:
         raise BakeError("No particle hit a reflecting surface: nothing to bake (are all "

@@ -43,10 +43,9 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
     # What the last render wrote (pass names, stats): for scripts, the demo and tests.
     last_render = {}
 
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        # Lives for one render job: the frames of an animation share it (incremental IR).
-        self.variant_state = variants.VariantState()
+    # What incremental IR keeps from frame to frame, and what Auto compares the frames
+    # by. Class-level: Blender makes a new engine for every frame of an animation.
+    variant_state = variants.VariantState()
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
@@ -63,7 +62,7 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, message)
             result = render.render_frame(
                 data, render_settings(scene), cancel=self.test_break,
-                progress=self._progress, variant_state=self.variant_state, **self._caches())
+                progress=self._progress, **self._caches())
         except render.Cancelled:
             return
         except InvalidScene as error:
@@ -84,10 +83,11 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                               f" | {stats['time']:.2f} s")
 
     def _caches(self):
-        """The BVH and VPL caches, unless the user switched caching off."""
+        """The BVH, VPL and variant caches, unless the user switched caching off."""
         if not preferences.use_cache():
             return {}
-        return {"tracer_cache": self.tracer_cache, "vpl_cache": self.vpl_cache}
+        return {"tracer_cache": self.tracer_cache, "vpl_cache": self.vpl_cache,
+                "variant_state": self.variant_state}
 
     def _fail(self, message, width, height, depsgraph):
         self.report({'ERROR'}, message)

@@ -90,12 +90,13 @@ class IRAD_OT_bake_animation(JobOperator, bpy.types.Operator):
         original = scene.frame_current
         per_frame, last = [], None
         radius = 0.0
+        state = bake.new_variant_state()   # incremental IR keeps its VPLs across frames
         try:
             for i, number in enumerate(frames):
                 scene.frame_set(number)
                 try:
                     frame = bake.prepare(scene, bpy.context.evaluated_depsgraph_get())
-                    last = bake.trace(scene, frame)
+                    last = bake.trace(scene, frame, state=state)
                 except BakeError as error:
                     raise BakeError(f"Frame {number}: {error}") from None
                 per_frame.append(bake.plan_lights(last, budget))

@@ -144,3 +144,35 @@ def test_every_variant_renders_through_the_engine(scene, variant):
     else:
         assert stats["variant"] == variant
     assert stats["variant_reason"]
+
+
+def test_animation_render_keeps_incremental_vpls_across_frames(scene, addon, monkeypatch,
+                                                               tmp_path):
+    # One render job over three frames of a moving light: the engine's VariantState
+    # lets incremental IR (Laine et al. 2007) keep the VPLs the light still sees.
+    core = addon.irad_addon
+    s = scenes.cornell_box("POINT", 16)
+    light = next(o for o in s.objects if o.type == 'LIGHT')
+    s.frame_start, s.frame_end = 1, 3
+    for frame, location in ((1, (-0.6, -0.2, 0.7)), (10, (0.6, 0.4, -0.3))):
+        light.location = location
+        light.keyframe_insert("location", frame=frame)
+    s.render.engine = ENGINE
+    s.render.filepath = str(tmp_path / "frame_")
+    s.irad.variant, s.irad.particles, s.irad.aa_samples = 'INCREMENTAL', 256, 1
+    frames = []
+    original = core.render.render_frame
+
+    def recording(*args, **kwargs):
+        result = original(*args, **kwargs)
+        frames.append(result)
+        return result
+
+    monkeypatch.setattr(core.render, "render_frame", recording)
+    bpy.ops.render.render(animation=True)
+    assert len(frames) == 3
+    assert all(f.stats["variant"] == "INCREMENTAL" for f in frames)
+    for a, b in zip(frames, frames[1:]):
+        seen = {tuple(p) for p in np.round(a.vpls.position, 9)}
+        kept = np.mean([tuple(p) in seen for p in np.round(b.vpls.position, 9)])
+        assert kept > 0.5, kept

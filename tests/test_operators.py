@@ -186,6 +186,35 @@ def test_animation_bake_keyframes_lights_that_render_each_frame(scene, core):
     assert not any(a.get("irad_baked") for a in bpy.data.actions)
 
 
+def shared_positions(a, b):
+    """Fraction of the VPLs of set b at exactly the position of one of set a."""
+    seen = {tuple(p) for p in np.round(a.position, 9)}
+    return np.mean([tuple(p) in seen for p in np.round(b.position, 9)])
+
+
+@pytest.mark.parametrize("variant", ["INCREMENTAL", "CLASSIC"])
+def test_incremental_animation_bake_keeps_its_vpls_across_frames(scene, core, monkeypatch,
+                                                                  variant):
+    scene = animated_cornell()
+    scene.frame_end = 4
+    scene.irad.variant = variant
+    traced = []
+    original = core.bake.trace
+
+    def recording(*args, **kwargs):
+        traced.append(original(*args, **kwargs))
+        return traced[-1]
+
+    monkeypatch.setattr(core.bake, "trace", recording)
+    assert bpy.ops.irad.bake_animation() == {'FINISHED'}
+    assert len(traced) == 4
+    shared = [shared_positions(a.vpls, b.vpls) for a, b in zip(traced, traced[1:])]
+    if variant == "INCREMENTAL":   # Laine et al. 2007: VPLs persist while the light moves
+        assert min(shared) > 0.5, shared
+    else:                          # a new VPL set every frame
+        assert max(shared) < 0.05, shared
+
+
 def test_cancelling_an_animation_bake_changes_nothing(scene, core, addon):
     """Esc closes the step generator mid-way: no lights, frame restored."""
     scene = animated_cornell()
