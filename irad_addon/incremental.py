@@ -6,11 +6,14 @@ it) with the path a particle sent that way took. Each frame, after the light mov
 - a site is invalid when the light's new position cannot see its first hit, when the
   hit leaves the spot's cone, or when an escaped ray now hits something (sec. 3.1);
 - valid sites keep their first hit y, so their direction becomes y - light;
-- sites crowded closer than half the ideal spacing go, worst first, and sites are added
+- sites crowded closer than 3/4 of the ideal spacing go, worst first, and sites are added
   at the centre of the largest empty circle (sec. 3.2), within a per-frame budget;
 - a site's power is its Voronoi cell's: the light's intensity integrated over the
   directions closer to it than to any other site (a fixed quadrature set), so the sites'
   powers sum to the light's power (sec. 3.3).
+The nearest-site searches behind the last two go through a grid of cubes over the
+directions (DirectionGrid), so their cost grows with the quadrature and site counts,
+not with their product. New sites' bounces draw on one Halton sequence (Keller 1997).
 Beyond the paper's one bounce, each site keeps its whole multi-bounce path: the later
 vertices do not depend on where the light is, and their flux scales with the first
 hit's, so they stay unbiased for that first hit. Other emitters get classic VPLs.
@@ -19,11 +22,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import vpl
+from . import sampling, vpl
 from .lights import PointEmitter, SpotEmitter
 
 BUDGET_SHARE = 0.05          # new sites per frame, as a share of the target count
 QUADRATURE_DIRECTIONS = 8192
+HALTON_BLOCK = 1024          # bounce points drawn at once
 _BOUNCE_DIMS = 3
 
 
@@ -63,6 +67,9 @@ class IncrementalVPLs:
         self.sites = None
         self.geometry_key = None
         self.rays = 0                 # rays traced by the last update (for cost checks)
+        self.compared = 0             # direction pairs compared by the last update
+        self.paths = 0                # sites created so far: their Halton index
+        self._halton = (None, 0, np.zeros((0, 0)))   # (seed and dims, first index, points)
         self.quadrature = fibonacci_sphere(QUADRATURE_DIRECTIONS)
 
     def update(self, frame, settings):
@@ -71,31 +78,30 @@ class IncrementalVPLs:
         if (self.sites is None or self.geometry_key != frame.tracer.fingerprint
                 or len(self.sites) != len(lights)):
             self.sites = [None] * len(lights)
+            self.paths = 0
             self.geometry_key = frame.tracer.fingerprint
         counts = (vpl.particles_per_emitter(frame.emitters, settings.particles)
                   if frame.emitters else [])
         targets = [int(c) for e, c in zip(frame.emitters, counts) if incremental_emitter(e)]
-        self.rays = 0
-        rng = np.random.default_rng([settings.seed, self.rays_seed()])
+        self.rays = self.compared = 0
         found, removed, added = [], 0, 0
         for k, (light, target) in enumerate(zip(lights, targets)):
-            sites, gone = self._validate(frame, light, self.sites[k], target)
-            sites, new = self._refill(frame, light, sites, target, settings.max_bounces, rng)
+            domain = self._domain(light)
+            sites, gone = self._validate(frame, light, self.sites[k], target, domain)
+            sites, cell, new = self._refill(frame, light, sites, target, domain, settings)
             self.sites[k] = sites
             removed, added = removed + gone, added + new
-            found.append(self._weighted_vpls(light, sites))
+            found.append(self._weighted_vpls(light, sites, domain, cell))
         if others:
             rest = replace(frame, emitters=others)
             found.append(vpl.trace_vpls(rest, int(sum(c for e, c in zip(frame.emitters, counts)
                                                       if not incremental_emitter(e))),
                                         settings.max_bounces, seed=settings.seed))
         vpls = _concat(found)
-        return vpls, {'removed': removed, 'added': added, 'rays': self.rays}
+        return vpls, {'removed': removed, 'added': added, 'rays': self.rays,
+                      'compared': self.compared}
 
-    def rays_seed(self):
-        return sum(0 if s is None else len(s.direction) for s in self.sites) + 7
-
-    def _validate(self, frame, light, sites, target):
+    def _validate(self, frame, light, sites, target, domain):
         """Drop sites the light's new position cannot use (Laine 2007, sec. 3.1)."""
         if sites is None or len(sites.direction) == 0:
             return sites, 0
@@ -114,65 +120,105 @@ class IncrementalVPLs:
         self.rays += len(r) + len(p)
         sites = replace(sites, direction=direction).keep(ok)
         spare = max(0, int(BUDGET_SHARE * target) - int((~ok).sum()))
-        return self._thin(sites, spare), int((~ok).sum())
+        return self._thin(sites, spare, self._area(domain)), int((~ok).sum())
 
-    def _thin(self, sites, spare):
+    def _thin(self, sites, spare, area):
         """Remove up to `spare` of the most crowded sites (closer to a neighbour than
-        the ideal spacing): the refill puts them back where the domain is emptiest."""
+        3/4 of the ideal spacing; Laine 2007 sec. 3.2): the refill puts them back where
+        the domain is emptiest."""
         count = len(sites.direction)
         if count < 3 or spare == 0:
             return sites
-        spacing = np.sqrt(4 * np.pi / count)
-        nearest = _nearest_other(sites.direction)
+        spacing = site_spacing(area, count)
+        grid = DirectionGrid(sites.direction, spacing)
+        _, cosine, compared = nearest_point(grid, sites.direction, skip_self=True, exact=False)
+        self.compared += compared
+        nearest = chord(cosine)
         crowded = np.flatnonzero(nearest < 0.75 * spacing)
         drop = crowded[np.argsort(nearest[crowded])][:spare]
         mask = np.ones(count, bool)
         mask[drop] = False
         return sites.keep(mask)
 
-    def _refill(self, frame, light, sites, target, max_bounces, rng):
+    def _refill(self, frame, light, sites, target, domain, settings):
         """Add sites at the largest empty circles, up to the per-frame budget (the whole
-        target on the first frame)."""
-        domain = self._domain(light)
+        target on the first frame). Returns the sites, the Voronoi cell (site index) of
+        every domain direction, and the number of sites added."""
         have = 0 if sites is None else len(sites.direction)
         budget = target if sites is None else max(1, int(BUDGET_SHARE * target))
-        count = min(budget, max(target - have, 0))
-        if count <= 0 or len(domain) == 0:
-            return sites, 0
+        count = min(budget, max(target - have, 0)) if len(domain) else 0
+        if sites is None and count:
+            new_dirs = self._lattice(light, count, domain)
+            sites = self._trace_sites(frame, light, new_dirs, settings)
+            return sites, self._voronoi_cells(sites.direction, domain)[0], len(new_dirs)
         if sites is None:
-            # First frame: a lattice over the domain, sized to hold `count` sites.
-            lattice = fibonacci_sphere(int(count * len(self.quadrature) / len(domain)) + 1)
-            new_dirs = lattice[light.attenuation(lattice) > 0]
-            count = len(new_dirs)
-        else:
-            new_dirs = _largest_empty_circles(domain, sites.direction, count)
+            return sites, np.zeros(0, np.int64), 0
+        cell, best = self._voronoi_cells(sites.direction, domain)
+        if count <= 0:
+            return sites, cell, 0
+        spacing = site_spacing(self._area(domain), target)
+        chosen, cell, compared = largest_empty_circles(domain, best, cell, count, spacing, have)
+        self.compared += compared
+        added = self._trace_sites(frame, light, domain[chosen], settings)
+        return LightSites(np.concatenate([sites.direction, added.direction]),
+                          np.concatenate([sites.hit, added.hit]),
+                          _concat([sites.unit_vpls, added.unit_vpls]),
+                          np.concatenate([sites.owner, added.owner + have])), cell, len(chosen)
+
+    def _lattice(self, light, count, domain):
+        """First frame: a Fibonacci lattice over the domain, sized to hold `count` sites."""
+        lattice = fibonacci_sphere(int(count * len(self.quadrature) / len(domain)) + 1)
+        return lattice[light.attenuation(lattice) > 0]
+
+    def _trace_sites(self, frame, light, directions, settings):
+        """New sites: one light path per direction, with unit power."""
+        count = len(directions)
         origin = np.broadcast_to(light.position, (count, 3))
-        unit = np.ones((count, 3))
-        bounce_u = rng.random((count, _BOUNCE_DIMS * max_bounces))
-        vpls, owner = vpl.follow_paths(frame, origin, new_dirs, unit, bounce_u, max_bounces)
+        vpls, owner = vpl.follow_paths(frame, origin, directions, np.ones((count, 3)),
+                                       self._bounce_points(count, settings), settings.max_bounces)
         self.rays += int(vpls.count + count)
         first = np.full((count, 3), np.nan)
         is_first = vpls.bounce == 1
         first[owner[is_first]] = vpls.position[is_first]
-        added = LightSites(new_dirs, first, vpls, owner)
-        if sites is None:
-            return added, count
-        return LightSites(np.concatenate([sites.direction, new_dirs]),
-                          np.concatenate([sites.hit, first]),
-                          _concat([sites.unit_vpls, vpls]),
-                          np.concatenate([sites.owner, owner + have])), count
+        return LightSites(directions, first, vpls, owner)
+
+    def _voronoi_cells(self, directions, domain):
+        """Nearest site (index, cosine) of every domain direction."""
+        grid = DirectionGrid(directions, site_spacing(self._area(domain), len(directions)))
+        cell, best, compared = nearest_point(grid, domain)
+        self.compared += compared
+        return cell, best
+
+    def _bounce_points(self, count, settings):
+        """The next `count` points of one scrambled Halton sequence for the sites' bounces:
+        the sites ever created stay stratified (Keller 1997 sec. 3), so their Russian
+        roulette keeps each bounce's total flux close to its expectation. Drawn in blocks:
+        scrambling a call's digits costs more than its few points."""
+        dims = _BOUNCE_DIMS * settings.max_bounces
+        key, start, block = self._halton
+        if key != (settings.seed, dims) or not start <= self.paths <= start + len(block) - count:
+            start = self.paths
+            block = sampling.halton(max(count, HALTON_BLOCK), dims, seed=settings.seed + 1,
+                                    start=start + 1)
+            self._halton = ((settings.seed, dims), start, block)
+        self.paths += count
+        return block[self.paths - count - start:self.paths - start]
 
     def _domain(self, light):
         """Quadrature directions of the light's domain (a spot: its cone's cap)."""
         return self.quadrature[light.attenuation(self.quadrature) > 0]
 
-    def _weighted_vpls(self, light, sites):
-        """Site power = intensity integrated over its Voronoi cell (Laine 2007 sec. 3.3)."""
+    def _area(self, domain):
+        """Solid angle of the domain [sr]."""
+        return 4 * np.pi * len(domain) / len(self.quadrature)
+
+    def _weighted_vpls(self, light, sites, domain, cell):
+        """Site power = intensity integrated over its Voronoi cell (Laine 2007 sec. 3.3),
+        by quadrature over the domain's directions."""
         if sites is None or len(sites.direction) == 0:
             return vpl.VPLs.empty()
-        q = self.quadrature
-        weight = light.intensity[None, :] * (light.attenuation(q) * 4 * np.pi / len(q))[:, None]
-        cell = np.argmax(q @ sites.direction.T, axis=1)
+        weight = light.intensity[None, :] * (light.attenuation(domain) * 4 * np.pi
+                                             / len(self.quadrature))[:, None]
         power = np.stack([np.bincount(cell, weight[:, c], minlength=len(sites.direction))
                           for c in range(3)], -1)
         out = sites.unit_vpls.subset(slice(None))
@@ -180,23 +226,107 @@ class IncrementalVPLs:
         return out
 
 
-def _nearest_other(directions):
-    """Angular distance (chord) from each direction to its nearest other one."""
-    dots = directions @ directions.T
-    np.fill_diagonal(dots, -2.0)
-    return np.sqrt(np.maximum(2.0 - 2.0 * dots.max(1), 0.0))
+class DirectionGrid:
+    """Unit directions binned into cubes of side `cell` over [-1, 1]^3: every direction
+    within chord distance ring * cell of a query lies in the (2 ring + 1)^3 cubes around
+    the query's own, so a search compares only those instead of every direction."""
+
+    def __init__(self, points, cell):
+        self.points = points
+        self.cell = float(cell)
+        self.n = int(np.ceil(2.0 / self.cell)) + 3      # cubes per axis, 1 of padding a side
+        keys = self.key(points)
+        self.order = np.argsort(keys, kind='stable')
+        # Points of cube k: order[first[k]:first[k] + count[k]].
+        self.first = np.searchsorted(keys[self.order], np.arange(self.n ** 3 + 1))
+        self.count = np.diff(self.first)
+
+    def key(self, directions):
+        cube = np.clip(np.floor((directions + 1.0) / self.cell).astype(np.int64) + 1,
+                       1, self.n - 2)
+        return (cube[:, 0] * self.n + cube[:, 1]) * self.n + cube[:, 2]
+
+    def candidates(self, directions, ring=1):
+        """(query, point) index pairs, queries ascending: every point in the cubes within
+        `ring` cubes of each query direction's cube (a ring beyond the padding wraps to
+        other cubes: extra candidates, never missing ones)."""
+        r = np.arange(-ring, ring + 1)
+        offsets = ((r[:, None, None] * self.n + r[None, :, None]) * self.n
+                   + r[None, None, :]).ravel()
+        key = (self.key(directions)[:, None] + offsets).ravel()
+        if ring > 1:
+            key = np.clip(key, 0, self.n ** 3 - 1)
+        occupied = np.flatnonzero(self.count[key])
+        query, key = occupied // len(offsets), key[occupied]
+        count = self.count[key]
+        position = (np.repeat(self.first[key] - np.cumsum(count) + count, count)
+                    + np.arange(count.sum()))
+        return np.repeat(query, count), self.order[position]
 
 
-def _largest_empty_circles(domain, existing, count):
+def site_spacing(domain_area, count):
+    """Mean distance between `count` evenly spread sites on a domain of that area."""
+    return float(np.sqrt(domain_area / max(count, 1)))
+
+
+def chord(cosine):
+    """Straight-line distance between unit vectors with this cosine."""
+    return np.sqrt(np.maximum(2.0 - 2.0 * cosine, 0.0))
+
+
+def nearest_point(grid, queries, skip_self=False, exact=True):
+    """(index, cosine) of each query's nearest grid point, and the number of direction
+    pairs compared. A query compares the points of the cubes around its own: one ring
+    of cubes is exact when the best lies within one cube side, two rings within two;
+    the few queries left (large empty regions) compare all points, or with exact=False
+    keep cosine -2 (nothing within a cube side). skip_self: the queries are the grid's
+    points, each excluding itself."""
+    best = np.full(len(queries), -2.0)
+    index = np.zeros(len(queries), np.int64)
+    todo, compared = np.arange(len(queries)), 0
+    for ring in (1, 2) if exact else (1,):
+        query, point = grid.candidates(queries[todo], ring)
+        query = todo[query]
+        cosine = sum(queries[:, a][query] * grid.points[:, a][point] for a in range(3))
+        if skip_self:
+            cosine[query == point] = -2.0
+        if len(query):
+            start = np.flatnonzero(np.r_[True, query[1:] != query[:-1]])
+            best[query[start]] = np.maximum.reduceat(cosine, start)
+            won = cosine == best[query]
+            index[query[won]] = point[won]
+        compared += len(query)
+        todo = todo[chord(best[todo]) > ring * grid.cell]
+    if exact and len(todo) and len(grid.points):
+        cosine = queries[todo] @ grid.points.T
+        if skip_self:
+            cosine[np.arange(len(todo)), todo] = -2.0
+        index[todo], best[todo] = cosine.argmax(1), cosine.max(1)
+        compared += len(todo) * len(grid.points)
+    return index, best, compared
+
+
+def largest_empty_circles(domain, best, cell, count, spacing, first):
     """Greedy farthest-point insertion over the domain's quadrature directions: each new
-    site goes to the centre of the largest empty circle left (Laine 2007 sec. 3.2)."""
-    best = (domain @ existing.T).max(1)
-    chosen = []
-    for _ in range(min(count, len(domain))):
+    site goes to the centre of the largest empty circle left (Laine 2007 sec. 3.2).
+    best, cell: cosine to and index of each domain direction's nearest site. A new site
+    can only become the nearest of the directions inside its circle, so only those
+    (found through a grid of the domain) are compared. Returns the chosen indices, the
+    Voronoi cells with the new sites (numbered from `first`) and the number of direction
+    pairs compared."""
+    grid = DirectionGrid(domain, spacing)
+    best, cell = best.copy(), cell.copy()
+    chosen, compared = [], 0
+    for k in range(min(count, len(domain))):
         i = int(np.argmin(best))
+        _, near = grid.candidates(domain[i:i + 1], int(np.ceil(chord(best[i]) / spacing)))
+        cosine = domain[near] @ domain[i]
+        closer = cosine > best[near]
+        best[near[closer]] = cosine[closer]
+        cell[near[closer]] = first + k
         chosen.append(i)
-        best = np.maximum(best, domain @ domain[i])
-    return domain[chosen]
+        compared += len(near)
+    return np.array(chosen, np.int64), cell, compared
 
 
 def _concat(parts):

@@ -133,6 +133,7 @@ def test_incremental_is_cheaper_steadier_and_close_to_classic(core):
     state = core.variants.VariantState()
     images = {'INCREMENTAL': [], 'CLASSIC': [], 'REFERENCE': []}
     rays = {'INCREMENTAL': [], 'CLASSIC': []}
+    compared = []         # direction pairs the incremental update compared, per frame
     for i in range(30):   # a point light circling under the ceiling
         t = 0.03 * i
         data = closed_box_with_light(core, (0.5 * np.cos(t), 0.5 * np.sin(t), 0.3), 0.8)
@@ -148,12 +149,24 @@ def test_incremental_is_cheaper_steadier_and_close_to_classic(core):
                                                   settings, state if kind == 'INCREMENTAL' else None)
             if kind in rays:
                 rays[kind].append(counting.rays)
+            if kind == 'INCREMENTAL':
+                compared.append(info['compared'])
             images[kind].append(indirect_radiance(core, frame, gb, vpls, 0.1))
     assert cache.builds == 1
-    # Frame 0 builds everything; afterwards the incremental update is much cheaper.
-    assert 3 * np.mean(rays['INCREMENTAL'][1:]) < np.mean(rays['CLASSIC'][1:]), rays
+    # Issue 5: per-frame cost at least 3x lower than rebuilding all VPLs. Frame 0 builds
+    # everything; afterwards count the work, not the wall clock: rays traced, and the
+    # direction pairs the Voronoi-cell and largest-empty-circle searches compare.
+    assert 3 * np.mean(rays['INCREMENTAL'][1:]) <= np.mean(rays['CLASSIC'][1:]), rays
+    # Near-linear in the quadrature directions and sites: comparing every quadrature
+    # direction with every site would be ~2000 pairs per direction or site.
+    linear = len(state.incremental.quadrature) + 1024
+    assert np.mean(compared[1:]) < 32 * linear, (np.mean(compared[1:]), linear)
     inc, cla, ref = (np.array(images[k]) for k in ('INCREMENTAL', 'CLASSIC', 'REFERENCE'))
     # Flicker: mean absolute frame-to-frame change per pixel (the camera is static).
     assert np.abs(np.diff(inc, axis=0)).mean() < np.abs(np.diff(cla, axis=0)).mean()
-    error = lambda x: np.mean(((x - ref) ** 2).mean(1) / (ref ** 2).mean(1))   # noqa: E731
-    assert error(inc) < 2.0 * max(error(cla), 1e-6), (error(inc), error(cla))
+    # Error per frame within 1.5x classic's at the same VPL count: on average, and on
+    # every frame against classic's mean (classic's own frames scatter by +-30%).
+    error = ((inc - ref) ** 2).mean(1) / (ref ** 2).mean(1)
+    classic_error = max(np.mean(((cla - ref) ** 2).mean(1) / (ref ** 2).mean(1)), 1e-6)
+    assert error.mean() < 1.5 * classic_error, (error.mean(), classic_error)
+    assert error.max() < 1.5 * classic_error, (error.max(), classic_error)
