@@ -4,8 +4,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import (antialiasing, bias_compensation, gather, geometry, interleaving, mirrors,
-               temporal, variants)
+from . import (antialiasing, bias_compensation, direct_lightcuts, gather, geometry,
+               interleaving, mirrors, temporal, variants)
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -127,10 +127,13 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
               for name, c in PASS_CHANNELS.items()}
     bands = row_bands(cam.height, cam.width, band_samples(settings), settings.interleave)
     dmin = clamp_distance(frame, vpls, settings.clamp)
+    # With lightcuts, area lights and emissive meshes join as many point lights.
+    light_points = direct_lightcuts.light_points(frame) if settings.use_lightcuts else None
     for number, rows in enumerate(bands):
         def band_progress(fraction, message):
             report(0.05 + 0.95 * (number + fraction) / len(bands), message)
-        band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, tally)
+        band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, tally,
+                           light_points)
         for name, image in band.items():
             passes[name][rows[0]:rows[1]] = image
     result = RenderResult(passes, warnings=warnings)
@@ -145,7 +148,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     return result
 
 
-def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
+def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_points=None):
     """Passes for image rows (first, stop). The G-buffer reaches one tile further up
     and down so the discontinuity buffer sees whole windows at the band's edges."""
     cam = frame.scene.camera
@@ -165,7 +168,17 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
 
     t = time.perf_counter()
     report(0.05, "Direct light")
-    E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check)
+    lightcuts = (gather.Lightcuts(settings.lightcut_error, settings.max_cut)
+                 if settings.use_lightcuts else None)
+    if light_points is None:
+        E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check)
+    else:
+        direct_stats = {}
+        E_direct = direct_lightcuts.direct_irradiance(frame, *light_points, gb,
+                                                      settings.light_samples, rng, lightcuts,
+                                                      check, direct_stats)
+        tally.count("direct_shadow_rays_per_point",
+                    direct_stats.get("shadow_rays_per_point", 0.0))
     tally.add("direct", t)
     if check():
         raise Cancelled()
@@ -173,8 +186,6 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally):
     t = time.perf_counter()
     subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
     subsets = interleaving.subset_count(k, gb.samples)
-    lightcuts = (gather.Lightcuts(settings.lightcut_error, settings.max_cut)
-                 if settings.use_lightcuts else None)
     gather_stats = {}
     E_indirect = gather.indirect_irradiance(
         frame, gb, vpls, dmin, subset_of_sample, subsets, check,

@@ -1,0 +1,74 @@
+"""Direct light through lightcuts (Walter et al. 2005, sec. 3): area lights and
+emissive meshes become many point lights on their surfaces, gathered with the same
+light trees and per-point cuts as the VPLs.
+
+A patch dA of a Lambertian emitter with radiance L lights x with
+    L dA cos_l cos_x / d^2 = (flux / pi) cos_l cos_x / d^2,   flux = pi L dA,
+exactly a VPL's term (Keller 1997, eq. 5), so the VPL gather serves unchanged (no
+clamping beyond NEAREST: these points are the light itself). Point, spot and sun
+lights and the world keep their own shadow rays (gather.direct_irradiance).
+"""
+from dataclasses import replace
+
+import numpy as np
+
+from . import gather, sampling
+from .lights import AreaEmitter, EmissiveMeshEmitter
+from .vpl import VPLs
+
+# Points per area light or emissive mesh: enough that a point's cut, not the
+# placement of the points, sets the error of soft shadows.
+POINTS_PER_LIGHT = 4096
+# Closest distance to a light point, in units of the scene's size: keeps the cuts'
+# error bounds finite on the light's own surface at no visible cost.
+NEAREST = 1e-4
+
+
+def area_light_points(emitter, count):
+    """Stratified points on a one-sided area light, each with 1/count of its flux."""
+    u = sampling.hammersley(count, 2)
+    position = emitter._points(u)
+    normal = np.broadcast_to(emitter.normal, (count, 3))
+    flux = np.broadcast_to(emitter.power() / count, (count, 3))
+    return VPLs(position, np.array(normal), np.array(flux), np.zeros(count, np.int32))
+
+
+def emissive_mesh_points(emitter, count):
+    """Points on emissive triangles (picked by power, stratified), one per side: the
+    mesh emits from both sides, each side half of a triangle's power."""
+    index, uv = emitter._choose(sampling.hammersley(count, 2))
+    position = emitter._point(index, uv)
+    flux = emitter.tri_power[index] / (emitter.pick[index, None] * count) / 2
+    normal = emitter.normals[index]
+    return VPLs(np.concatenate([position, position]), np.concatenate([normal, -normal]),
+                np.concatenate([flux, flux]), np.zeros(2 * count, np.int32))
+
+
+def light_points(frame, count=POINTS_PER_LIGHT):
+    """(VPLs standing in for the frame's area lights and emissive meshes, the frame
+    with the other emitters only) -- or (None, frame) when it has neither."""
+    points, rest = [], []
+    for emitter in frame.emitters:
+        if isinstance(emitter, AreaEmitter) and emitter.area > 0:
+            points.append(area_light_points(emitter, count))
+        elif isinstance(emitter, EmissiveMeshEmitter):
+            points.append(emissive_mesh_points(emitter, count))
+        else:
+            rest.append(emitter)
+    if not points:
+        return None, frame
+    merged = VPLs(*[np.concatenate([getattr(p, name) for p in points])
+                    for name in ("position", "normal", "flux", "bounce")])
+    return merged, replace(frame, emitters=rest)
+
+
+def direct_irradiance(frame, points, others, gb, light_samples, rng, lightcuts,
+                      cancel=None, stats=None):
+    """Irradiance (S, 3) from every emitter: the light points `points` (light_points)
+    through lightcuts, the `others` frame's emitters with shadow rays."""
+    E = gather.direct_irradiance(others, gb, light_samples, rng, cancel)
+    if points is not None:
+        everyone = np.zeros(len(gb.hit), np.int64)   # no interleaving: the light itself
+        E += gather.indirect_irradiance(frame, gb, points, NEAREST * frame.extent, everyone,
+                                        1, cancel, lightcuts=lightcuts, stats=stats)
+    return E
