@@ -26,13 +26,21 @@ unfinished point replaces its cut nodes with the largest bound or deviation by
 their children, and with them every other node within a factor 2 (a bucketed
 priority queue: same stopping rule, ~log as many numpy steps). One child keeps the
 parent's representative (and its already-traced visibility), so each refined node
-costs one shadow ray; a step's rays go to Embree in one call.
+costs one shadow ray. A step costs one scan of the chunk's cut table (float32
+cutoffs per row) plus work per refined node, done in cache-sized blocks.
 """
 import numpy as np
 
 # Cut entries (points x cut size) held per chunk: 17 bytes each (_Cuts).
 _CUT_ENTRIES = 1 << 22
-_FIRST_CAPACITY = 32
+# Nodes refined per block of numpy work (its temporaries stay in cache).
+_BLOCK = 1 << 14
+# Bound tables larger than this are gathered a node record at a time (_Table.gather),
+# transposed in pieces of _TRANSPOSE nodes.
+_CACHE_BYTES = 1 << 20
+_TRANSPOSE = 2048
+# Finished points leave the chunk's tables once this share of them is done.
+_RETIRE = 0.125
 # Each step refines, per point, the nodes within this factor of its largest bound.
 _BUCKET = 0.5
 # Standard deviations of a cut's total error kept under the error threshold:
@@ -42,6 +50,8 @@ _DEVIATIONS = 2.58
 # partly lit (measured on the occluder test scene: 1 leaves the 99th percentile
 # at 1.5x the error, 4 brings it under; more costs rays for little).
 _EDGE_GENERATIONS = 4
+# Smallest normal float32: a floor that keeps 1/x and x/y finite.
+_TINY = np.float32(np.finfo(np.float32).tiny)
 
 
 def cluster_bound(table, nodes, P, N, min_distance2):
@@ -56,41 +66,68 @@ def cluster_deviation(table, nodes, P, N, G, min_distance2):
     linearised where the cluster lies wholly in front of the point (positive lower
     bound), and at most half its range (Popoviciu) -- its bound where it may cross
     the horizon."""
-    t = np.take(table, nodes, axis=1)
-    upper, lower = cluster_range(t, P, N, G, min_distance2)
-    half_range = 0.5 * (upper - lower)
-    linear = linear_deviation(t, P, N, min_distance2)
-    return upper, np.where(lower > 0, np.minimum(linear, half_range), half_range)
+    return range_deviation(np.take(table, nodes, axis=1), P, N, G, min_distance2)
 
 
-def linear_deviation(t, P, N, min_distance2):
+def range_deviation(t, P, N, G, min_distance2):
+    """cluster_deviation for gathered bound columns t."""
+    to_centre = centre_offset(t, P)
+    upper, lower = cluster_range(t, P, N, G, min_distance2, to_centre)
+    half_range = np.float32(0.5) * (upper - lower)
+    linear = linear_deviation(t, P, N, min_distance2, to_centre)
+    # lower <= 0: inf or NaN, and fmin takes the half range (also on overflow).
+    with np.errstate(divide='ignore', invalid='ignore'):
+        linear /= lower > 0
+    return upper, np.fmin(linear, half_range)
+
+
+def centre_offset(t, P):
+    """v = cluster centre - P (3, m) and |v|^2, shared by the bounds and deviation."""
+    v = t[0:3] - P
+    return v, dot3(v, v)
+
+
+def dot3(a, b):
+    """Column-wise dot product of (3, m) arrays, summed in the order of .sum(0)."""
+    out = a[0] * b[0]
+    out += a[1] * b[1]
+    out += a[2] * b[2]
+    return out
+
+
+def linear_deviation(t, P, N, min_distance2, to_centre=None):
     """sqrt(g^T C_y g + h^T C_n h) * flux/pi: the first-order standard deviation of
     f = cos_x cos_y / max(d^2, dmin^2) over a cluster whose VPL positions y and
     normals n have covariances C_y, C_n, with g, h the gradients of f in y and n at
-    the cluster's centre and cone axis."""
-    d = t[0:3] - P
-    dist2 = np.maximum((d * d).sum(0), np.float32(1e-30))
-    dist = np.sqrt(dist2)
-    u = d / dist
-    cos_x = (N * u).sum(0)
-    cos_y = -(t[10:13] * u).sum(0)
-    scale = 1.0 / np.maximum(dist2, min_distance2)
+    the cluster's centre and cone axis. float32 throughout."""
+    d, dist2 = to_centre if to_centre is not None else centre_offset(t, P)
+    dist2 = np.maximum(dist2, np.float32(1e-30))
+    inv = 1 / np.sqrt(dist2)
+    u = d * inv
+    axis = t[10:13]
+    cos_x = dot3(N, u)
+    cos_y = -dot3(axis, u)
+    scale = 1 / np.maximum(dist2, np.float32(min_distance2))
     # d/dy of cos_x cos_y is (cos_y N - cos_x n - 2 cos_x cos_y u) / d; 1/d^2 adds
     # -2 cos_x cos_y u / d where the clamp is off.
-    pull = np.where(dist2 > min_distance2, 4.0, 2.0) * cos_x * cos_y
-    g = scale / dist * (cos_y * N - cos_x * t[10:13] - pull * u)
-    h = -(scale * cos_x) * u
-    variance = quadratic_form(g, t[17:23]) + quadratic_form(h, t[23:29])
-    return t[15] * t[16] * np.sqrt(np.maximum(variance, 0.0))
+    pull = (dist2 > min_distance2) + np.float32(1)
+    pull *= 2 * cos_x * cos_y
+    g = cos_y * N - cos_x * axis - pull * u
+    h = -cos_x * u
+    variance = quadratic_form(g, t[17:23]) * (scale * inv) ** 2
+    variance += quadratic_form(h, t[23:29]) * scale * scale
+    return t[15] * t[16] * np.sqrt(np.maximum(variance, 0))
 
 
 def quadratic_form(x, c):
     """x^T C x per column, C given as its 6 entries (xx, yy, zz, xy, xz, yz)."""
-    return (x[0] * x[0] * c[0] + x[1] * x[1] * c[1] + x[2] * x[2] * c[2]
-            + 2 * (x[0] * x[1] * c[3] + x[0] * x[2] * c[4] + x[1] * x[2] * c[5]))
+    cross = x[0] * x[1] * c[3] + x[0] * x[2] * c[4] + x[1] * x[2] * c[5]
+    cross *= 2
+    cross += x[0] * x[0] * c[0] + x[1] * x[1] * c[1] + x[2] * x[2] * c[2]
+    return cross
 
 
-def cluster_range(t, P, N, G, min_distance2):
+def cluster_range(t, P, N, G, min_distance2, to_centre=None):
     """Upper and lower bounds (2 x (m,)) on what one VPL of cluster `nodes` brings
     per unit of the cluster's flux, times its largest channel of flux / pi, at points
     P with normals N and geometric normals G (float32 (3, m) columns):
@@ -100,111 +137,137 @@ def cluster_range(t, P, N, G, min_distance2):
     distances over its box (Walter 2005 sec. 4.1 for the upper bound); `t` holds
     the clusters' LightTree.bound_columns. The upper bound caps the cluster's error
     whatever its visibility; upper - lower caps it if the whole cluster is visible.
-    Both are zero for single VPLs (traced exactly)."""
-    v = t[0:3] - P                                   # to the cluster's centre
-    dist = np.sqrt((v * v).sum(0))
+    Both are zero for single VPLs (traced exactly). No np.where (slow): masks
+    multiply, and every term stays finite."""
+    v, dist2 = to_centre if to_centre is not None else centre_offset(t, P)
+    dist = np.sqrt(dist2)
     inside = dist <= t[3]
-    inv = 1.0 / np.where(inside, 1.0, dist)
-    sin_a = np.where(inside, 1.0, t[3] * inv)         # the sphere's angular radius
-    cos_a = np.sqrt(1.0 - sin_a * sin_a)
+    inv = 1 / np.maximum(dist, _TINY)
+    sin_a = np.minimum(t[3] * inv, np.float32(1))     # the sphere's angular radius
+    cos_a = np.sqrt(1 - sin_a * sin_a)
     # cos_x: the receiver normal against directions into the sphere; the VPL must
     # also lie above the geometric normal's plane to count at all.
-    cos_b = (N * v).sum(0) * inv
-    cos_x = cos_within(cos_b, cos_a, sin_a)
-    min_x = cos_beyond(cos_b, cos_a, sin_a) * (cos_beyond((G * v).sum(0) * inv, cos_a, sin_a) > 0)
+    cos_b = dot3(N, v) * inv
+    sin_b = sine(cos_b)
+    cos_x = cos_within(cos_b, sin_b, cos_a, sin_a)
+    min_x = cos_beyond(cos_b, sin_b, cos_a, sin_a)
+    cos_n = dot3(G, v) * inv
+    min_x *= (cos_n * cos_a - sine(cos_n) * sin_a) > 0
     # cos_y: the cone (axis, half angle) widened by the sphere, against the
     # direction from the cluster to the point.
-    cos_g = -(t[10:13] * v).sum(0) * inv
+    cos_g = dot3(t[10:13], v) * -inv
+    sin_g = sine(cos_g)
     cos_s = cos_a * t[13] - sin_a * t[14]
     sin_s = sin_a * t[13] + cos_a * t[14]
-    cos_y = np.where(sin_s < 0, 1.0, cos_within(cos_g, cos_s, sin_s))
-    min_y = np.where(cos_s > 0, cos_beyond(cos_g, cos_s, sin_s), 0.0)
-    near = np.maximum(np.maximum(t[4:7] - P, P - t[7:10]), 0.0)
-    far = np.maximum(np.abs(t[4:7] - P), np.abs(P - t[7:10]))
-    near2 = np.maximum((near * near).sum(0), min_distance2)
-    far2 = np.maximum((far * far).sum(0), min_distance2)
+    cos_y = np.maximum(cos_within(cos_g, sin_g, cos_s, sin_s), sin_s < 0)
+    min_y = cos_beyond(cos_g, sin_g, cos_s, sin_s)
+    min_y *= cos_s > 0
+    near2, far2 = box_distances2(t, P, min_distance2)
     scale = t[15] * t[16]
-    upper = scale * np.where(inside, 1.0, cos_x * cos_y)
-    lower = scale * np.where(inside, 0.0, min_x * min_y)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        upper = np.where(upper > 0, upper / near2, 0.0)
-        lower = np.where(lower > 0, lower / far2, 0.0)
-    return upper.astype(np.float32), lower.astype(np.float32)
+    upper = np.maximum(cos_x * cos_y, inside)
+    upper *= scale
+    upper /= near2
+    lower = min_x * min_y
+    lower *= ~inside
+    lower *= scale
+    lower /= far2
+    return upper, lower
 
 
-def cos_beyond(cos_angle, cos_spread, sin_spread):
+def sine(cos):
+    """sqrt(1 - cos^2), 0 where round-off pushes |cos| past 1."""
+    return np.sqrt(np.maximum(1 - cos * cos, np.float32(0)))
+
+
+def box_distances2(t, P, min_distance2):
+    """Smallest and largest squared distance (clamped at dmin^2, and above 0) from
+    P to the box."""
+    near2 = far2 = 0
+    for k in range(3):
+        below, above = t[4 + k] - P[k], P[k] - t[7 + k]
+        near = np.maximum(np.maximum(below, above), np.float32(0))
+        far = np.maximum(np.abs(below), np.abs(above))
+        near2, far2 = near2 + near * near, far2 + far * far
+    floor = np.float32(max(min_distance2, _TINY))
+    return np.maximum(near2, floor), np.maximum(far2, floor)
+
+
+def cos_beyond(cos_angle, sin_angle, cos_spread, sin_spread):
     """Smallest cos(angle + x) for 0 <= x <= spread (spread <= pi/2), clamped at 0."""
-    sin_angle = np.sqrt(np.maximum(1.0 - cos_angle * cos_angle, 0.0))
-    return np.maximum(cos_angle * cos_spread - sin_angle * sin_spread, 0.0)
+    out = cos_angle * cos_spread - sin_angle * sin_spread
+    return np.maximum(out, np.float32(0), out=out)
 
 
-def cos_within(cos_angle, cos_spread, sin_spread):
+def cos_within(cos_angle, sin_angle, cos_spread, sin_spread):
     """Largest cos(angle - x) for 0 <= x <= spread, clamped at 0: 1 inside the
     spread, else cos(angle - spread)."""
-    sin_angle = np.sqrt(np.maximum(1.0 - cos_angle * cos_angle, 0.0))
-    outside = cos_angle * cos_spread + sin_angle * sin_spread
-    return np.where(cos_angle >= cos_spread, 1.0, np.maximum(outside, 0.0))
+    out = cos_angle * cos_spread + sin_angle * sin_spread
+    np.maximum(out, np.float32(0), out=out)
+    return np.maximum(out, cos_angle >= cos_spread, out=out)
 
 
-def vpl_weight(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps):
-    """cos_x cos_y / max(d^2, dmin^2) * V for point-VPL pairs, all (3, m) columns, with the shadow segment of gather.vpl_irradiance_chunk (offset origin,
-    unnormalised direction, shortened at the VPL's end)."""
+def vpl_weight(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps, origin):
+    """cos_x cos_y / max(d^2, dmin^2) * V for point-VPL pairs, all (3, m) columns, with
+    the shadow segment of gather.vpl_irradiance_chunk (offset origin, unnormalised
+    direction, shortened at the VPL's end); `origin` (m, 3): the offset origins in
+    the tracer's local frame (_Points)."""
     d = vpl_position - P
-    dist2 = np.maximum((d * d).sum(0), np.float32(1e-30))
+    dist2 = np.maximum(dot3(d, d), np.float32(1e-30))
     inv = 1 / np.sqrt(dist2)
-    cos_x = (d * N).sum(0) * inv
-    cos_y = -(d * vpl_normal).sum(0) * inv
-    valid = (cos_x > 0) & (cos_y > 0) & ((d * G).sum(0) > 0)
-    weight = np.where(valid, cos_x * cos_y / np.maximum(dist2, np.float32(min_distance2)), 0)
+    cos_x = dot3(d, N) * inv
+    cos_y = dot3(d, vpl_normal) * -inv
+    valid = (cos_x > 0) & (cos_y > 0) & (dot3(d, G) > 0)
+    weight = cos_x * cos_y
+    weight /= np.maximum(dist2, np.float32(min_distance2))
+    weight *= valid
     pairs = np.flatnonzero(valid)
     if len(pairs):
         tfar = (1 - 1e-5) - 2 * eps * inv[pairs] / np.maximum(cos_y[pairs], np.float32(1e-2))
-        origin = (P[:, pairs] + G[:, pairs] * eps).T
-        blocked = tracer.occluded(origin, d[:, pairs].T, tfar, threads=False)
-        weight[pairs[blocked]] = 0.0
+        blocked = tracer.occluded(np.take(origin, pairs, axis=0),
+                                  np.ascontiguousarray(d[:, pairs].T), tfar,
+                                  threads=False, local=True)
+        weight[pairs[blocked]] = 0
     return weight
 
 
 class _Cuts:
-    """The cuts of a batch of points, one row each. Refined nodes are appended as
-    new columns; a row that refines fewer nodes than others leaves holes (node -1,
-    bound -1, deviation 0, weight 0), squeezed out when they pile up. `bound` is a
-    node's error bound, `deviation` the standard deviation of its estimate."""
+    """The cuts of a chunk's live points, one row each: row r's nodes fill its first
+    size[r] columns in the order they joined (a refined node's slot takes one child,
+    the other is appended), then FILL. `bound` is a node's error bound, `deviation`
+    the standard deviation of its estimate, `variance` (float64) a row's sum of them
+    squared."""
     FILL = {'node': -1, 'weight': 0, 'bound': -1, 'deviation': 0, 'edge': 0}
+    DTYPE = {'node': np.int32, 'weight': np.float32, 'bound': np.float32,
+             'deviation': np.float32, 'edge': np.int8}
 
     def __init__(self, rows, capacity):
-        self.node = np.full((rows, capacity), -1, np.int32)
-        for name in ('weight', 'bound', 'deviation'):
-            setattr(self, name, np.full((rows, capacity), self.FILL[name], np.float32))
-        self.edge = np.zeros((rows, capacity), np.int8)
-        self.width = 1                     # columns in use
+        # Allocated once, unwritten (so untouched by the OS) past the columns in use.
+        for name in self.FILL:
+            setattr(self, name, np.empty((rows, capacity), self.DTYPE[name]))
+        self.filled = 0                    # columns holding FILL or nodes
+        self.reserve(1)
+        self.size = np.ones(rows, np.int64)
+        self.variance = np.zeros(rows)
 
     @property
-    def capacity(self):
-        return self.node.shape[1]
+    def width(self):                       # columns in use by the longest cut
+        return int(self.size.max())
 
     def reserve(self, columns):
-        rows, old = self.node.shape
-        if columns <= old:
-            return
-        capacity = max(columns, 2 * old)
-        for name, fill in self.FILL.items():
-            array = getattr(self, name)
-            bigger = np.full((rows, capacity), fill, array.dtype)
-            bigger[:, :old] = array
-            setattr(self, name, bigger)
+        """Fill columns up to `columns` with FILL."""
+        if columns > self.filled:
+            for name, fill in self.FILL.items():
+                getattr(self, name)[:, self.filled:columns] = fill
+            self.filled = columns
 
-    def keep(self, rows):
-        for name in self.FILL:
-            setattr(self, name, getattr(self, name)[rows])
-
-    def squeeze(self, size):
-        """Move every row's nodes to its first columns (stable), dropping the holes."""
-        order = np.argsort(self.node[:, :self.width] < 0, axis=1, kind='stable')
+    def keep(self, live):
+        """Drop the rows where `live` is False (the rest move up, in order)."""
+        rows, width = int(live.sum()), self.width
         for name in self.FILL:
             array = getattr(self, name)
-            array[:, :self.width] = np.take_along_axis(array[:, :self.width], order, 1)
-        self.width = max(int(size.max()), 1)
+            array[:rows, :width] = array[live, :width]
+            setattr(self, name, array[:rows])
+        self.size, self.variance = self.size[live], self.variance[live]
 
 
 def lightcut_irradiance(P, N, G, tree, error, max_cut, min_distance2, tracer, eps,
@@ -220,114 +283,168 @@ def lightcut_irradiance(P, N, G, tree, error, max_cut, min_distance2, tracer, ep
     if n == 0 or tree.size == 0:
         return E, cut_size
     max_cut = max(1, int(max_cut))
-    chunk = max(64, _CUT_ENTRIES // max_cut)
+    # A cut holds at most every VPL: the cut tables need no more columns.
+    chunk = max(64, _CUT_ENTRIES // min(max_cut, (tree.size + 1) // 2))
     P, N, G = (np.asarray(x, np.float64) for x in (P, N, G))
     baseline = np.zeros(n) if baseline is None else np.asarray(baseline, np.float64)
+    table = _Table(tree, min_distance2, tracer, eps)
     for a in range(0, n, chunk):
         part = slice(a, a + chunk)
-        E[part], cut_size[part] = _refine_chunk(P[part], N[part], G[part], baseline[part],
-                                                tree, error, max_cut, min_distance2,
-                                                tracer, eps)
+        points = _Points(P[part], N[part], G[part], tracer, eps)
+        E[part], cut_size[part] = _refine_chunk(points, baseline[part], table, error, max_cut)
     return E, cut_size
 
 
+def float32_at_least(x, strict=False):
+    """The smallest float32 >= x (> x if strict), per entry of float64 x: comparing
+    float32 arrays against it decides as comparing them against x."""
+    with np.errstate(over='ignore'):
+        y = x.astype(np.float32)
+    short = (y <= x) if strict else (y < x)
+    return np.where(short, np.nextafter(y, np.float32(np.inf)), y)
+
+
+def refine_cutoffs(cuts, width, threshold):
+    """Per row, the float32 bound and deviation from which a node is refined this
+    step. Walter 2005: every cluster's bound under the threshold, largest first in
+    factor-2 buckets. And the cut's total error, a sum of independent zero-mean
+    errors (unbiased representatives): while _DEVIATIONS standard deviations of it
+    exceed the threshold, the deviations of at least half the row's largest."""
+    largest = cuts.bound[:, :width].max(1)
+    bucket = np.maximum(threshold, _BUCKET * largest)
+    bound_cutoff = np.where(bucket > threshold, float32_at_least(bucket),
+                            float32_at_least(threshold, strict=True))
+    widest = cuts.deviation[:, :width].max(1)
+    smallest = np.float32(np.finfo(np.float32).smallest_subnormal)
+    spread = _DEVIATIONS * np.sqrt(np.maximum(cuts.variance, 0)) > threshold
+    deviation_cutoff = np.where(spread, np.maximum(np.float32(_BUCKET) * widest, smallest),
+                                np.float32(np.inf))
+    return bound_cutoff, deviation_cutoff
+
+
 def _worst_nodes(cuts, threshold, room):
-    """The nodes to refine this step: in each row, those whose bound exceeds the
-    row's threshold and at least half the row's largest bound (largest bounds
-    first, in factor-2 buckets), and, while the row's total deviation is too large,
-    those with at least half its largest deviation; at most `room` (what is left
-    of max_cut).
+    """The nodes to refine this step (refine_cutoffs), at most `room` per row (what
+    is left of max_cut), the first columns first.
     Returns the row, column and rank within its row of each, and counts per row."""
-    bound = cuts.bound[:, :cuts.width]
-    deviation = cuts.deviation[:, :cuts.width]
-    # Walter 2005: every cluster's bound under the threshold.
-    cutoff = np.maximum(threshold, _BUCKET * bound.max(1))[:, None]
-    mask = (bound >= cutoff) & (bound > threshold[:, None])
-    # And the cut's total error, a sum of independent zero-mean errors (unbiased
-    # representatives): refine the largest deviations while _DEVIATIONS standard
-    # deviations of the sum exceed the threshold.
-    total = _DEVIATIONS * np.sqrt((deviation * deviation).sum(1))
-    widest = (deviation >= _BUCKET * deviation.max(1)[:, None]) & (deviation > 0)
-    mask |= widest & (total > threshold)[:, None]
-    count = mask.sum(1)
-    over = np.flatnonzero(count > room)
-    if len(over):
-        mask[over] &= np.cumsum(mask[over], 1) <= room[over, None]
-        count[over] = room[over]
-    row, slot = np.nonzero(mask)
+    width = cuts.width
+    bound_cutoff, deviation_cutoff = refine_cutoffs(cuts, width, threshold)
+    mask = cuts.bound[:, :width] >= bound_cutoff[:, None]
+    mask |= cuts.deviation[:, :width] >= deviation_cutoff[:, None]
+    # 2D nonzero is ~3x slower than flat indices split into row and column.
+    flat = np.flatnonzero(mask)
+    row = flat // width
+    slot = flat - row * width
+    count = np.bincount(row, minlength=len(threshold))
     rank = np.arange(len(row)) - (np.cumsum(count) - count)[row]
+    if (count > room).any():
+        keep = rank < room[row]
+        row, slot, rank = row[keep], slot[keep], rank[keep]
+        count = np.minimum(count, room)
     return row, slot, rank, count
 
 
 class _Points:
     """The points of a chunk as float32 (3, n) columns (the exhaustive gather's
-    precision), so that per-pair gathers are contiguous."""
+    precision), so that per-pair gathers are contiguous, and their shadow-ray
+    origins (offset along G) as float32 (n, 3) rows in the tracer's local frame."""
 
-    def __init__(self, P, N, G):
+    def __init__(self, P, N, G, tracer, eps):
         self.P, self.N, self.G = (np.ascontiguousarray(x.T, np.float32) for x in (P, N, G))
+        self.origin = tracer.to_local((self.P + self.G * eps).T)
+
+    def keep(self, live):
+        for name in ('P', 'N', 'G'):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name)[:, live]))
+        self.origin = self.origin[live]
+
+    def columns(self, rows):
+        """P, N, G of `rows` (float32 (3, m)) and their ray origins (m, 3)."""
+        return (*(np.stack([np.take(c, rows) for c in x]) for x in (self.P, self.N, self.G)),
+                np.take(self.origin, rows, axis=0))
 
 
-def _refine_chunk(P, N, G, baseline, tree, error, max_cut, min_distance2, tracer, eps):
-    n = len(P)
+def _refine_chunk(points, baseline, table, error, max_cut):
+    n = points.P.shape[1]
     E = np.zeros((n, 3))
     cut_size = np.zeros(n, np.int64)
-    points = _Points(P, N, G)
-    table = _Table(tree, min_distance2, tracer, eps)
     rows = np.arange(n)                    # original point of each live row
-    root = np.full(n, tree.root)
-    weight = table.weight(root, points.P, points.N, points.G)
-    estimate = tree.flux[root] / np.pi * weight[:, None]
-    cuts = _Cuts(n, min(max_cut, _FIRST_CAPACITY))
+    root = np.full(n, table.root)
+    weight = table.weight(root, *points.columns(rows))
+    estimate = table.flux[:, root].T * weight[:, None].astype(np.float64)
+    cuts = _Cuts(n, min(max_cut, table.leaves))
     cuts.node[:, 0], cuts.weight[:, 0] = root, weight
-    cuts.bound[:, 0], cuts.deviation[:, 0] = table.bounds(root, points.P, points.N, points.G)
-    size = np.ones(n, np.int64)
+    bound, deviation = table.bounds(root, points.P, points.N, points.G)
+    cuts.bound[:, 0], cuts.deviation[:, 0] = bound, deviation
+    cuts.variance += np.square(deviation, dtype=np.float64)
     while len(rows):
         threshold = error * (estimate.mean(1) + baseline)
-        row, slot, rank, count = _worst_nodes(cuts, threshold, max_cut - size)
+        row, slot, rank, count = _worst_nodes(cuts, threshold, max_cut - cuts.size)
         done = count == 0
-        if done.all() or done.mean() > 0.25:
-            # Retire finished rows; live rows keep being refined.
-            E[rows[done]], cut_size[rows[done]] = estimate[done], size[done]
+        if done.all() or done.mean() > _RETIRE:
+            # Retire finished rows (a finished row stays finished); the rest go on.
+            E[rows[done]], cut_size[rows[done]] = estimate[done], cuts.size[done]
             live = ~done
-            rows, estimate, size, baseline = rows[live], estimate[live], size[live], baseline[live]
+            rows, estimate, baseline = rows[live], estimate[live], baseline[live]
             cuts.keep(live)
+            points.keep(live)
             if not len(rows):
                 break
             renumber = np.cumsum(live) - 1
-            keep = live[row]
-            row, slot, rank, count = renumber[row[keep]], slot[keep], rank[keep], count[live]
-        if cuts.width > 2 * size.max() + 64:
-            cuts.squeeze(size)
-            continue
-        new_columns = int(count.max())
-        cuts.reserve(cuts.width + new_columns)
-        at = rows[row]
-        _refine_nodes(tree, table, cuts, row, slot, cuts.width + rank, estimate,
-                      points.P[:, at], points.N[:, at], points.G[:, at])
-        size += count
-        cuts.width += new_columns
+            row, count = renumber[row], count[live]
+        cuts.reserve(int((cuts.size + count).max()))
+        _refine_nodes(table, cuts, row, slot, cuts.size[row] + rank, estimate, points)
+        cuts.size += count
     return E, cut_size
 
 
 class _Table:
-    """What refinement reads per node: bound data and the representative VPL."""
+    """What refinement reads per node: bound data, the children (the one keeping
+    the node's representative first), flux / pi and the representative VPL."""
 
     def __init__(self, tree, min_distance2, tracer, eps):
         self.columns = tree.bound_columns
+        self.root = tree.root
         self.representative = tree.representative
-        leaves = (tree.size + 1) // 2
-        self.vpl_position, self.vpl_normal = (np.ascontiguousarray(x[:leaves].T, np.float32)
+        self.flux = np.ascontiguousarray((tree.flux / np.pi).T)   # (3, K)
+        left, right = np.maximum(tree.left, 0), np.maximum(tree.right, 0)
+        keeps = tree.representative[left] == tree.representative
+        self.same, self.other = np.where(keeps, left, right), np.where(keeps, right, left)
+        self.leaves = (tree.size + 1) // 2
+        self.vpl_position, self.vpl_normal = (np.ascontiguousarray(x[:self.leaves].T, np.float32)
                                               for x in (tree.lo, tree.axis))
         self.min_distance2, self.tracer, self.eps = min_distance2, tracer, eps
+        self._buffer = np.empty((len(self.columns), 0), np.float32)
+        self.records = None
+        if self.columns.nbytes > _CACHE_BYTES:
+            rows = np.ascontiguousarray(self.columns.T)
+            self.records = rows.view(np.dtype((np.void, rows.strides[0]))).ravel()
 
-    def weight(self, nodes, P, N, G):
+    def weight(self, nodes, P, N, G, origin):
         rep = self.representative[nodes]
-        return vpl_weight(P, N, G, self.vpl_position[:, rep], self.vpl_normal[:, rep],
-                          self.min_distance2, self.tracer, self.eps)
+        return vpl_weight(P, N, G, np.take(self.vpl_position, rep, axis=1),
+                          np.take(self.vpl_normal, rep, axis=1), self.min_distance2,
+                          self.tracer, self.eps, origin)
 
     def bounds(self, nodes, P, N, G):
         """Error bound and standard deviation per node (cluster_deviation)."""
-        return cluster_deviation(self.columns, nodes, P, N, G, self.min_distance2)
+        return range_deviation(self.gather(nodes), P, N, G, self.min_distance2)
+
+    def gather(self, nodes):
+        """The bound columns (29, m) of `nodes`, into a reused buffer (fresh large
+        arrays cost page faults; take buffers `out` unless mode is not 'raise').
+        A table bigger than the cache is read a node (one 116-byte record) at a
+        time, then transposed in cache-sized pieces: a column-wise take would miss
+        the cache once per column."""
+        m = len(nodes)
+        if self._buffer.shape[1] < m:
+            self._buffer = np.empty((len(self.columns), m), np.float32)
+        out = self._buffer[:, :m]
+        if self.records is None:
+            return np.take(self.columns, nodes, axis=1, out=out, mode='clip')
+        rows = np.take(self.records, nodes, mode='clip').view(np.float32).reshape(m, -1)
+        for a in range(0, m, _TRANSPOSE):
+            np.copyto(out[:, a:a + _TRANSPOSE], rows[a:a + _TRANSPOSE].T)
+        return out
 
 
 def visibility_edge(w_same, w_other, parent_edge):
@@ -339,29 +456,53 @@ def visibility_edge(w_same, w_other, parent_edge):
     return np.where(disagree, _EDGE_GENERATIONS, np.maximum(parent_edge - 1, 0)).astype(np.int8)
 
 
-def _refine_nodes(tree, table, cuts, row, slot, column, estimate, P, N, G):
+def child_bounds(table, nodes, edge, P, N, G):
+    """Bound and deviation of refined-in nodes (zero for single VPLs: their flux
+    column is 0): near a visibility edge a cluster may be partly lit, its estimate then
+    anywhere in [0, bound], a deviation of up to bound / 2 (Popoviciu)."""
+    bound, deviation = table.bounds(nodes, P, N, G)
+    near_edge = edge > 0
+    deviation *= ~near_edge
+    deviation += np.float32(0.5) * bound * near_edge
+    return bound, deviation
+
+
+def _refine_nodes(table, cuts, row, slot, column, estimate, points):
     """Replace the node at (row, slot) by its children: the child sharing the
     parent's representative takes the slot and the parent's weight, the other goes
-    to (row, column) with one new shadow ray. P, N, G: the rows' point columns."""
-    at_slot = row * cuts.capacity + slot
-    at_column = row * cuts.capacity + column
+    to (row, column) with one new shadow ray. In blocks of _BLOCK nodes, so that
+    the temporaries stay in cache."""
+    for a in range(0, len(row), _BLOCK):
+        part = slice(a, a + _BLOCK)
+        _refine_block(table, cuts, row[part], slot[part], column[part], estimate,
+                      points.columns(row[part]))
+
+
+def _refine_block(table, cuts, row, slot, column, estimate, columns):
+    P, N, G, origin = columns
+    capacity = cuts.node.shape[1]
+    at_slot, at_column = row * capacity + slot, row * capacity + column
     parent = cuts.node.ravel()[at_slot]
-    left, right = tree.left[parent], tree.right[parent]
-    keeps = table.representative[left] == table.representative[parent]
-    same, other = np.where(keeps, left, right), np.where(keeps, right, left)
-    w_same = cuts.weight.ravel()[at_slot].astype(np.float64)
-    w_other = table.weight(other, P, N, G)
+    same, other = table.same[parent], table.other[parent]
+    w_same = cuts.weight.ravel()[at_slot]
+    w_other = table.weight(other, P, N, G, origin)
     # flux(parent) = flux(same) + flux(other), and `same` keeps the parent's weight.
-    change = tree.flux[other] / np.pi * (w_other - w_same)[:, None]
-    for channel in range(3):
-        estimate[:, channel] += np.bincount(row, change[:, channel], len(estimate))
+    change = w_other - w_same.astype(np.float64)
+    for channel, flux in enumerate(table.flux):
+        estimate[:, channel] += np.bincount(row, np.take(flux, other) * change, len(estimate))
     edge = visibility_edge(w_same, w_other, cuts.edge.ravel()[at_slot])
-    for at, node in ((at_slot, same), (at_column, other)):
-        cuts.edge.ravel()[at] = edge
-        bound, deviation = table.bounds(node, P, N, G)
-        cuts.node.ravel()[at] = node
-        cuts.bound.ravel()[at] = bound
-        # Near a visibility edge a cluster may be partly lit: its estimate then
-        # lies anywhere in [0, bound], a deviation of up to bound / 2 (Popoviciu).
-        cuts.deviation.ravel()[at] = np.where(edge > 0, 0.5 * bound, deviation)
+    old = cuts.deviation.ravel()[at_slot]
+    # Both children in one batch: at_slot gets `same`, at_column `other`.
+    at, nodes, edge = (np.concatenate(x) for x in ((at_slot, at_column), (same, other),
+                                                    (edge, edge)))
+    bound, deviation = child_bounds(table, nodes, edge, *(np.concatenate((x, x), 1)
+                                                          for x in (P, N, G)))
+    cuts.node.ravel()[at] = nodes
+    cuts.edge.ravel()[at] = edge
+    cuts.bound.ravel()[at] = bound
+    cuts.deviation.ravel()[at] = deviation
     cuts.weight.ravel()[at_column] = w_other
+    # The rows' summed variance: the children's replace the parent's.
+    added = np.square(deviation, dtype=np.float64)
+    added = added[:len(row)] + added[len(row):] - np.square(old, dtype=np.float64)
+    cuts.variance += np.bincount(row, added, len(estimate))
