@@ -26,6 +26,7 @@ from . import sampling, vpl
 from .lights import PointEmitter, SpotEmitter
 
 BUDGET_SHARE = 0.05          # new sites per frame, as a share of the target count
+REBUILD_BELOW = 0.5          # fewer valid sites than this share of the target: rebuild
 QUADRATURE_DIRECTIONS = 8192
 HALTON_BLOCK = 1024          # bounce points drawn at once
 _BOUNCE_DIMS = 3
@@ -42,18 +43,20 @@ def fibonacci_sphere(count):
 
 @dataclass
 class LightSites:
-    """One light's sites: direction, first hit (NaN when the ray escaped) and the
-    path's VPLs per unit power sent along the direction, with their site index."""
+    """One light's sites: direction, first hit and the normal on its lit side (NaN
+    when the ray escaped) and the path's VPLs per unit power sent along the direction,
+    with their site index."""
     direction: np.ndarray
     hit: np.ndarray
+    hit_normal: np.ndarray
     unit_vpls: vpl.VPLs
     owner: np.ndarray
 
     def keep(self, mask):
         index = np.cumsum(mask) - 1
         own = mask[self.owner]
-        return LightSites(self.direction[mask], self.hit[mask], self.unit_vpls.subset(own),
-                          index[self.owner[own]])
+        return LightSites(self.direction[mask], self.hit[mask], self.hit_normal[mask],
+                          self.unit_vpls.subset(own), index[self.owner[own]])
 
 
 def incremental_emitter(emitter):
@@ -88,6 +91,8 @@ class IncrementalVPLs:
         for k, (light, target) in enumerate(zip(lights, targets)):
             domain = self._domain(light)
             sites, gone = self._validate(frame, light, self.sites[k], target, domain)
+            if sites is not None and len(sites.direction) < REBUILD_BELOW * target:
+                sites = None   # a jump lost most sites: start afresh, not 5% a frame
             sites, cell, new = self._refill(frame, light, sites, target, domain, settings)
             self.sites[k] = sites
             removed, added = removed + gone, added + new
@@ -110,6 +115,9 @@ class IncrementalVPLs:
         dist = np.linalg.norm(to_hit, axis=1)
         direction = to_hit / np.maximum(dist, 1e-30)[:, None]
         ok = light.attenuation(direction) > 0
+        # The light must stay on the lit side of the first hit: through a two-sided
+        # wall it sees the surface, not the VPL.
+        ok[real] &= np.einsum('ij,ij->i', sites.hit_normal[real], direction[real]) < 0
         eps = frame.offset()
         r = np.flatnonzero(real & ok)
         ok[r] &= ~frame.tracer.occluded(np.broadcast_to(light.position, (len(r), 3)),
@@ -162,6 +170,7 @@ class IncrementalVPLs:
         added = self._trace_sites(frame, light, domain[chosen], settings)
         return LightSites(np.concatenate([sites.direction, added.direction]),
                           np.concatenate([sites.hit, added.hit]),
+                          np.concatenate([sites.hit_normal, added.hit_normal]),
                           _concat([sites.unit_vpls, added.unit_vpls]),
                           np.concatenate([sites.owner, added.owner + have])), cell, len(chosen)
 
@@ -177,10 +186,11 @@ class IncrementalVPLs:
         vpls, owner = vpl.follow_paths(frame, origin, directions, np.ones((count, 3)),
                                        self._bounce_points(count, settings), settings.max_bounces)
         self.rays += int(vpls.count + count)
-        first = np.full((count, 3), np.nan)
+        first, first_normal = np.full((count, 3), np.nan), np.full((count, 3), np.nan)
         is_first = vpls.bounce == 1
         first[owner[is_first]] = vpls.position[is_first]
-        return LightSites(directions, first, vpls, owner)
+        first_normal[owner[is_first]] = vpls.normal[is_first]
+        return LightSites(directions, first, first_normal, vpls, owner)
 
     def _voronoi_cells(self, directions, domain):
         """Nearest site (index, cosine) of every domain direction."""

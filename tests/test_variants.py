@@ -170,3 +170,30 @@ def test_incremental_is_cheaper_steadier_and_close_to_classic(core):
     classic_error = max(np.mean(((cla - ref) ** 2).mean(1) / (ref ** 2).mean(1)), 1e-6)
     assert error.mean() < 1.5 * classic_error, (error.mean(), classic_error)
     assert error.max() < 1.5 * classic_error, (error.max(), classic_error)
+
+
+def test_incremental_recovers_at_once_when_the_light_jumps_behind_a_wall(core):
+    # Two rooms split by a wall: the light jumps from one to the other, so every VPL
+    # it had becomes invalid (Laine 2007 sec. 3.1). The next frame must not be left
+    # with the 5% per-frame budget: it rebuilds the whole set.
+    sd = core.scene_data
+    wall = synthetic.grid_quad(2).astype(np.float64) @ np.array(
+        [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]).T * [0, 1, 1]   # the plane x = 0
+    tris = np.concatenate([synthetic.closed_box(3), wall.astype(np.float32)])
+    state = core.variants.VariantState()
+    settings = core.render.RenderSettings(particles=1024, max_bounces=8,
+                                          variant='INCREMENTAL')
+    counts, infos = [], []
+    for x in (-0.5, -0.45, 0.5):
+        light = sd.PointLight(np.array([x, 0.1, 0.3]), np.ones(3), 100.0, 0.0)
+        cam = synthetic.camera(sd, size=8)
+        data = synthetic.scene(sd, tris, [0.8] * 3, lights=[light], camera=cam)
+        frame = core.frame.prepare_frame(data)
+        vpls, info = core.variants.place_vpls(frame, None, settings, state)
+        counts.append(vpls.count)
+        infos.append(info)
+    # Every site is lost, those on the wall's far side too: the light sees the wall,
+    # not the side the VPL was lit from.
+    assert infos[2]['removed'] == infos[0]['added'], infos
+    assert (vpls.position[:, 0] > -1e-6).all()   # all in the room the light entered
+    assert counts[2] > 0.8 * counts[0], counts
