@@ -23,7 +23,9 @@ def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample,
     E = np.zeros((len(gb.hit), 3))
     if clamp_distance <= 0 or vpls.count == 0:
         return E
-    idx = np.flatnonzero(gb.hit)
+    # One compensation ray per pixel (its first shading sample), weighted by the
+    # samples per pixel: unbiased, and the discontinuity buffer spreads it.
+    idx = np.flatnonzero(gb.hit & (gb.sample == 0))
     direction = sampling.to_world(sampling.square_to_cosine_hemisphere(rng.random((len(idx), 2))),
                                   gb.normal[idx])
     above = np.einsum('ij,ij->i', direction, gb.geo_normal[idx]) > 0
@@ -40,5 +42,5 @@ def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample,
            + gather.indirect_irradiance(frame, y, vpls, clamp_distance,
                                         subset_of_sample[idx[near]], subsets, cancel))
     radiance_y = y.albedo / np.pi * E_y
-    E[idx[near]] = np.pi * radiance_y * weight[:, None]
+    E[idx[near]] = gb.samples * np.pi * radiance_y * weight[:, None]
     return E
