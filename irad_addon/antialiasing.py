@@ -3,8 +3,8 @@
 Edges need many camera rays per pixel (the box filter integrates coverage and albedo),
 irradiance does not: it varies smoothly along a surface. So the G-buffer is traced
 twice: `aa_samples` shading samples per pixel gather light, and `coverage_samples`
-camera rays per pixel each take the irradiance of the nearest shading sample on the
-same surface, from their own pixel or else a neighbour (the split of coverage and
+camera rays per pixel each take the mean irradiance of the shading samples on the
+same surface, in their own pixel or else a neighbour (the split of coverage and
 shading of MSAA and of decoupled sampling, Ragan-Kelley et al. 2011).
 """
 import numpy as np
@@ -40,16 +40,12 @@ def surface_mismatch(cov, gb, index, candidates, strict=True):
     safe = np.maximum(candidates, 0)
     x_c, n_c = cov.position[index][:, None, :], cov.geo_normal[index][:, None, :]
     x_s, n_s = gb.position[safe], gb.geo_normal[safe]
-    gap = x_c - x_s
-    tolerance = PLANE_TOLERANCE * np.minimum(cov.depth[index][:, None], gb.depth[safe])
-    cosine = np.einsum('nkc,nkc->nk', n_c, n_s)
     same = (candidates >= 0) & gb.hit[safe] & ~gb.holdout[safe]
-    if not strict:
-        same &= cosine > 0
+    if strict:
+        same &= same_surface(x_c, n_c, cov.depth[index][:, None], x_s, n_s, gb.depth[safe])
     else:
-        same &= ((cosine > SAME_SURFACE_COS)
-                 & (np.abs(np.einsum('nkc,nkc->nk', gap, n_s)) <= tolerance)
-                 & (np.abs(np.einsum('nkc,nkc->nk', gap, n_c)) <= tolerance))
+        same &= np.einsum('...c,...c->...', n_c, n_s) > 0
+    gap = x_c - x_s
     return np.where(same, np.einsum('nkc,nkc->nk', gap, gap), np.inf)
 
 
@@ -73,13 +69,15 @@ def surface_weights(cov, gb, index, offsets, strict=True):
 
 
 def same_surface(position_a, normal_a, depth_a, position_b, normal_b, depth_b):
-    """bool (n,): pairs of hit samples on the same surface (the test of
-    surface_mismatch, for one candidate each)."""
+    """bool (...): pairs of hit samples on the same surface: normals within
+    SAME_SURFACE_COS, each within PLANE_TOLERANCE of its depth of the other's plane.
+    Arrays (..., 3) and depths (...) broadcast against each other."""
+    dot = lambda a, b: np.einsum('...c,...c->...', a, b)   # noqa: E731
     gap = position_a - position_b
     tolerance = PLANE_TOLERANCE * np.minimum(depth_a, depth_b)
-    return ((np.einsum('nc,nc->n', normal_a, normal_b) > SAME_SURFACE_COS)
-            & (np.abs(np.einsum('nc,nc->n', gap, normal_a)) <= tolerance)
-            & (np.abs(np.einsum('nc,nc->n', gap, normal_b)) <= tolerance))
+    return ((dot(normal_a, normal_b) > SAME_SURFACE_COS)
+            & (np.abs(dot(gap, normal_a)) <= tolerance)
+            & (np.abs(dot(gap, normal_b)) <= tolerance))
 
 
 def uniform_pixels(gb):
