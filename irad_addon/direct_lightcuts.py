@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import gather, sampling
+from . import gather
 from .lights import AreaEmitter, EmissiveMeshEmitter
 from .vpl import VPLs
 
@@ -24,42 +24,20 @@ POINTS_PER_LIGHT = 4096
 NEAREST = 1e-4
 
 
-def area_light_points(emitter, count):
-    """Stratified points on a one-sided area light, each with 1/count of its flux."""
-    u = sampling.hammersley(count, 2)
-    position = emitter._points(u)
-    normal = np.broadcast_to(emitter.normal, (count, 3))
-    flux = np.broadcast_to(emitter.power() / count, (count, 3))
-    return VPLs(position, np.array(normal), np.array(flux), np.zeros(count, np.int32))
-
-
-def emissive_mesh_points(emitter, count):
-    """Points on emissive triangles (picked by power, stratified), one per side: the
-    mesh emits from both sides, each side half of a triangle's power."""
-    index, uv = emitter._choose(sampling.hammersley(count, 2))
-    position = emitter._point(index, uv)
-    flux = emitter.tri_power[index] / (emitter.pick[index, None] * count) / 2
-    normal = emitter.normals[index]
-    return VPLs(np.concatenate([position, position]), np.concatenate([normal, -normal]),
-                np.concatenate([flux, flux]), np.zeros(2 * count, np.int32))
-
-
 def light_points(frame, count=POINTS_PER_LIGHT):
     """(VPLs standing in for the frame's area lights and emissive meshes, the frame
     with the other emitters only) -- or (None, frame) when it has neither."""
     points, rest = [], []
     for emitter in frame.emitters:
-        if isinstance(emitter, AreaEmitter) and emitter.area > 0:
-            points.append(area_light_points(emitter, count))
-        elif isinstance(emitter, EmissiveMeshEmitter):
-            points.append(emissive_mesh_points(emitter, count))
+        if isinstance(emitter, (AreaEmitter, EmissiveMeshEmitter)):
+            points.append(emitter.point_lights(count))
         else:
             rest.append(emitter)
     if not points:
         return None, frame
-    merged = VPLs(*[np.concatenate([getattr(p, name) for p in points])
-                    for name in ("position", "normal", "flux", "bounce")])
-    return merged, replace(frame, emitters=rest)
+    position, normal, flux = (np.concatenate(column) for column in zip(*points))
+    vpls = VPLs(position, normal, flux, np.zeros(len(position), np.int32))
+    return vpls, replace(frame, emitters=rest)
 
 
 def direct_irradiance(frame, points, others, gb, light_samples, rng, lightcuts,

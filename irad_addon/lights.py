@@ -173,6 +173,13 @@ class AreaEmitter:
                                       np.broadcast_to(self.normal, (n, 3)))
         return origin, direction, np.broadcast_to(self.power() / n, (n, 3))
 
+    def point_lights(self, count):
+        """(positions, normals, flux) of `count` stratified points standing in for the
+        light (direct_lightcuts.py), each with 1/count of its flux."""
+        position = self._points(sampling.hammersley(count, 2))
+        normal = np.tile(self.normal, (count, 1))
+        return position, normal, np.tile(self.power() / count, (count, 1))
+
     def incident(self, points, normals, u):
         direction, dist = _unit(self._points(u) - points)
         cos_l = np.maximum(-(direction @ self.normal), 0.0)
@@ -416,6 +423,16 @@ class EmissiveMeshEmitter:
         direction = sampling.to_world(sampling.square_to_cosine_hemisphere(u[:, 2:4]), normal)
         flux = self.tri_power[index] / (self.pick[index, None] * n)
         return origin, direction, flux
+
+    def point_lights(self, count):
+        """(positions, normals, flux) of 2 x `count` points standing in for the
+        triangles (picked by power, stratified), one per side: each side emits half."""
+        index, uv = self._choose(sampling.hammersley(count, 2))
+        position = self._point(index, uv)
+        flux = self.tri_power[index] / (self.pick[index, None] * count) / self.sides
+        normal = self.normals[index]
+        return (np.concatenate([position, position]), np.concatenate([normal, -normal]),
+                np.concatenate([flux, flux]))
 
     def incident(self, points, normals, u):
         index, uv = self._choose(u)
