@@ -102,7 +102,7 @@ class IncrementalVPLs:
             found.append(vpl.trace_vpls(rest, int(sum(c for e, c in zip(frame.emitters, counts)
                                                       if not incremental_emitter(e))),
                                         settings.max_bounces, seed=settings.seed))
-        vpls = _concat(found)
+        vpls = vpl.VPLs.concatenate(found)
         return vpls, {'removed': removed, 'added': added, 'rays': self.rays,
                       'compared': self.compared}
 
@@ -171,7 +171,7 @@ class IncrementalVPLs:
         return LightSites(np.concatenate([sites.direction, added.direction]),
                           np.concatenate([sites.hit, added.hit]),
                           np.concatenate([sites.hit_normal, added.hit_normal]),
-                          _concat([sites.unit_vpls, added.unit_vpls]),
+                          vpl.VPLs.concatenate([sites.unit_vpls, added.unit_vpls]),
                           np.concatenate([sites.owner, added.owner + have])), cell, len(chosen)
 
     def _lattice(self, light, count, domain):
@@ -337,11 +337,3 @@ def largest_empty_circles(domain, best, cell, count, spacing, first):
         chosen.append(i)
         compared += len(near)
     return np.array(chosen, np.int64), cell, compared
-
-
-def _concat(parts):
-    parts = [p for p in parts if p is not None and p.count]
-    if not parts:
-        return vpl.VPLs.empty()
-    return vpl.VPLs(*[np.concatenate([getattr(p, f) for p in parts])
-                      for f in ('position', 'normal', 'flux', 'bounce')])

@@ -117,8 +117,7 @@ class PathStore:
         owner = np.concatenate([b[1] for b in self.batches])
         order = np.argsort(owner, kind='stable')
         owner, f_vpl = owner[order], np.concatenate([b[2] for b in self.batches])[order]
-        vpls = vpl.VPLs(*[np.concatenate([b[0].__dict__[name] for b in self.batches])[order]
-                          for name in ('position', 'normal', 'flux', 'bounce')])
+        vpls = vpl.VPLs.concatenate([b[0] for b in self.batches]).subset(order)
         pick = vpl_of_each_path(owner, f_vpl, recorded, rng)
         pick = pick[np.argsort(morton_code(vpls.position[pick]), kind='stable')]
         draws = min(len(pick), count)

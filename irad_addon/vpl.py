@@ -29,6 +29,15 @@ class VPLs:
     def empty():
         return VPLs(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int32))
 
+    @staticmethod
+    def concatenate(parts):
+        """One VPL set of all of `parts` (None and empty sets skipped), in order."""
+        parts = [p for p in parts if p is not None and p.count]
+        if not parts:
+            return VPLs.empty()
+        return VPLs(*[np.concatenate([getattr(p, name) for p in parts])
+                      for name in ('position', 'normal', 'flux', 'bounce')])
+
     def subset(self, mask_or_index):
         return VPLs(self.position[mask_or_index], self.normal[mask_or_index],
                     self.flux[mask_or_index], self.bounce[mask_or_index])
@@ -124,6 +133,4 @@ def follow_paths(frame, origin, direction, flux, bounce_u, max_bounces, cancel=N
         origin = position[idx] + geo[idx] * eps
     if not found:
         return VPLs.empty(), np.zeros(0, np.int64)
-    return (VPLs(*[np.concatenate([getattr(v, f) for v in found])
-                   for f in ('position', 'normal', 'flux', 'bounce')]),
-            np.concatenate(owner))
+    return VPLs.concatenate(found), np.concatenate(owner)
