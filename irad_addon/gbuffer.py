@@ -27,6 +27,9 @@ class GBuffer:
     holdout: np.ndarray          # bool (S,)
     # float64 (S, 3): product of the mirror reflectances on the way; None: no mirrors seen
     throughput: np.ndarray | None = None
+    # float64 (S, 3): radiance of the lights seen in mirrors on the way, each times the
+    # reflectances before it; None: no mirrors seen
+    mirrored_light: np.ndarray | None = None
 
     def pixel_mean(self, values):
         """Average per-sample values (S, C) into (height, width, C) pixels (a box filter)."""
@@ -87,9 +90,9 @@ def build_gbuffer(frame, cam, samples, rng, rows=None, smooth_normals=True):
     s = trace_surfaces(frame, origins + directions * near[:, None], directions,
                        np.maximum(far - near, 0), smooth_normals)
     length = s.distance + near
-    throughput = None
+    throughput = mirrored_light = None
     if frame.mirror is not None:
-        throughput, length = follow_mirrors(frame, s, directions, length)
+        throughput, length, mirrored_light = follow_mirrors(frame, s, directions, length)
     depth = np.where(s.hit, length * cos_axis, 1e10)
     obj = np.full(len(s.hit), -1, np.int32)
     holdout = np.zeros(len(s.hit), bool)
@@ -97,7 +100,7 @@ def build_gbuffer(frame, cam, samples, rng, rows=None, smooth_normals=True):
     holdout[s.hit] = frame.holdout[s.triangle[s.hit]]
     return GBuffer(cam.width, rows[1] - rows[0], rows[0], samples, pixel, sample, s.hit,
                    s.position, s.normal, s.geo_normal, s.albedo, s.emission, depth, obj,
-                   holdout, throughput)
+                   holdout, throughput, mirrored_light)
 
 
 # Mirror reflections a camera ray follows before it is cut off (black).
@@ -107,9 +110,9 @@ MAX_MIRROR_BOUNCES = 8
 def follow_mirrors(frame, points, directions, length):
     """Continue rays that hit perfect mirrors along their reflection (Keller 1997
     sec. 4.2 handles the light side; the camera side is a specular chain): `points`
-    are updated in place to the first non-mirror hit, their emission including the
-    lights seen in the mirrors. Returns the throughput (n, 3) (product of mirror
-    reflectances) and the path length (n,)."""
+    are updated in place to the first non-mirror hit. Returns the throughput (n, 3)
+    (product of mirror reflectances), the path length (n,) and the radiance (n, 3) of
+    the lights seen in the mirrors, each times the reflectances before it."""
     throughput = np.ones((len(points.hit), 3))
     length = np.asarray(length, np.float64).copy()
     directions = np.array(directions, np.float64)
@@ -134,11 +137,7 @@ def follow_mirrors(frame, points, directions, length):
         for name in SurfacePoints.__dataclass_fields__:
             getattr(points, name)[on_mirror] = getattr(after, name)
         directions[on_mirror] = reflected
-    # The passes multiply emission by the whole throughput: divide out what the
-    # mirrors after the light add (lost where a later mirror reflects nothing).
-    reflected_any = throughput > 0
-    points.emission += np.where(reflected_any, seen / np.where(reflected_any, throughput, 1), 0)
-    return throughput, length
+    return throughput, length, seen
 
 
 def light_radiance_along(emitters, origins, directions, tfar):

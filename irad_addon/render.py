@@ -231,12 +231,11 @@ def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent):
     direct = np.where(visible[:, None], gb.emission + brdf * E_direct, 0.0)
     indirect = np.where(visible[:, None], brdf * E_indirect, 0.0)
     background = ~gb.hit & (not film_transparent)
-    # The world, plus any light a mirror-reflected ray passed on its way out (gbuffer.py).
-    direct[background] = (np.maximum(np.nan_to_num(np.asarray(world_radiance, np.float64)), 0.0)
-                          + gb.emission[background])
-    if gb.throughput is not None:   # seen in mirrors
+    direct[background] = np.maximum(np.nan_to_num(np.asarray(world_radiance, np.float64)), 0.0)
+    if gb.throughput is not None:   # seen in mirrors, with the lights they reflect
         direct *= gb.throughput
         indirect *= gb.throughput
+        direct += gb.mirrored_light
     alpha = (visible | background).astype(np.float64)
     combined = np.concatenate([direct + indirect, alpha[:, None]], -1)
     depth = gb.depth[:, None]
