@@ -11,9 +11,9 @@ it) with the path a particle sent that way took. Each frame, after the light mov
 - a site's power is its Voronoi cell's: the light's intensity integrated over the
   directions closer to it than to any other site (a fixed quadrature set), so the sites'
   powers sum to the light's power (sec. 3.3).
-The nearest-site searches behind the last two go through a grid of cubes over the
-directions (DirectionGrid), so their cost grows with the quadrature and site counts,
-not with their product. New sites' bounces draw on one Halton sequence (Keller 1997).
+The nearest-site searches behind the last two (direction_search.py) go through grids
+of cubes over the directions, so their cost grows with the quadrature and site counts,
+not with their product; the domain's grid is kept while the domain stays. New sites' bounces draw on one Halton sequence (Keller 1997).
 Beyond the paper's one bounce, each site keeps its whole multi-bounce path: the later
 vertices do not depend on where the light is, and their flux scales with the first
 hit's, so they stay unbiased for that first hit. Other emitters get classic VPLs.
@@ -23,12 +23,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import sampling, vpl
+from .direction_search import (DirectionGrid, chord, largest_empty_circles, nearest_point,
+                               nearest_sites, site_spacing)
 from .lights import PointEmitter, SpotEmitter
 
 BUDGET_SHARE = 0.05          # new sites per frame, as a share of the target count
+CROWDED = 0.75               # sites closer than this share of the ideal spacing may go
 REBUILD_BELOW = 0.5          # fewer valid sites than this share of the target: rebuild
 QUADRATURE_DIRECTIONS = 8192
-HALTON_BLOCK = 1024          # bounce points drawn at once
+HALTON_BLOCK = 4096          # bounce points drawn at once
 _BOUNCE_DIMS = 3
 
 
@@ -74,6 +77,7 @@ class IncrementalVPLs:
         self.paths = 0                # sites created so far: their Halton index
         self._halton = (None, 0, np.zeros((0, 0)))   # (seed and dims, first index, points)
         self.quadrature = fibonacci_sphere(QUADRATURE_DIRECTIONS)
+        self._domains = {}            # (domain mask, target) -> DirectionGrid
 
     def update(self, frame, settings):
         lights = [e for e in frame.emitters if incremental_emitter(e)]
@@ -89,7 +93,7 @@ class IncrementalVPLs:
         self.rays = self.compared = 0
         found, removed, added = [], 0, 0
         for k, (light, target) in enumerate(zip(lights, targets)):
-            domain = self._domain(light)
+            domain = self._domain(light, target)
             sites, gone = self._validate(frame, light, self.sites[k], target, domain)
             if sites is not None and len(sites.direction) < REBUILD_BELOW * target:
                 sites = None   # a jump lost most sites: start afresh, not 5% a frame
@@ -137,12 +141,14 @@ class IncrementalVPLs:
         count = len(sites.direction)
         if count < 3 or spare == 0:
             return sites
-        spacing = site_spacing(area, count)
-        grid = DirectionGrid(sites.direction, spacing)
+        # Cubes of the crowding distance: one ring around a site holds every neighbour
+        # that close (the others are not needed).
+        crowding = CROWDED * site_spacing(area, count)
+        grid = DirectionGrid(sites.direction, crowding)
         _, cosine, compared = nearest_point(grid, sites.direction, skip_self=True, exact=False)
         self.compared += compared
         nearest = chord(cosine)
-        crowded = np.flatnonzero(nearest < 0.75 * spacing)
+        crowded = np.flatnonzero(nearest < crowding)
         drop = crowded[np.argsort(nearest[crowded])][:spare]
         mask = np.ones(count, bool)
         mask[drop] = False
@@ -154,9 +160,9 @@ class IncrementalVPLs:
         every domain direction, and the number of sites added."""
         have = 0 if sites is None else len(sites.direction)
         budget = target if sites is None else max(1, int(BUDGET_SHARE * target))
-        count = min(budget, max(target - have, 0)) if len(domain) else 0
+        count = min(budget, max(target - have, 0)) if len(domain.points) else 0
         if sites is None and count:
-            new_dirs = self._lattice(light, count, domain)
+            new_dirs = self._lattice(light, count, domain.points)
             sites = self._trace_sites(frame, light, new_dirs, settings)
             return sites, self._voronoi_cells(sites.direction, domain)[0], len(new_dirs)
         if sites is None:
@@ -164,10 +170,9 @@ class IncrementalVPLs:
         cell, best = self._voronoi_cells(sites.direction, domain)
         if count <= 0:
             return sites, cell, 0
-        spacing = site_spacing(self._area(domain), target)
-        chosen, cell, compared = largest_empty_circles(domain, best, cell, count, spacing, have)
+        chosen, cell, compared = largest_empty_circles(domain, best, cell, count, have)
         self.compared += compared
-        added = self._trace_sites(frame, light, domain[chosen], settings)
+        added = self._trace_sites(frame, light, domain.points[chosen], settings)
         return LightSites(np.concatenate([sites.direction, added.direction]),
                           np.concatenate([sites.hit, added.hit]),
                           np.concatenate([sites.hit_normal, added.hit_normal]),
@@ -194,8 +199,7 @@ class IncrementalVPLs:
 
     def _voronoi_cells(self, directions, domain):
         """Nearest site (index, cosine) of every domain direction."""
-        grid = DirectionGrid(directions, site_spacing(self._area(domain), len(directions)))
-        cell, best, compared = nearest_point(grid, domain)
+        cell, best, compared = nearest_sites(domain, directions)
         self.compared += compared
         return cell, best
 
@@ -214,126 +218,33 @@ class IncrementalVPLs:
         self.paths += count
         return block[self.paths - count - start:self.paths - start]
 
-    def _domain(self, light):
-        """Quadrature directions of the light's domain (a spot: its cone's cap)."""
-        return self.quadrature[light.attenuation(self.quadrature) > 0]
+    def _domain(self, light, target):
+        """The quadrature directions of the light's domain (a spot: its cone's cap) in a
+        grid of cubes of 0.8 times the target's site spacing (nearly every direction has a
+        site that close: the fewest pairs, measured), kept while the domain stays."""
+        inside = light.attenuation(self.quadrature) > 0
+        key = (hash(inside.tobytes()), target)
+        if key not in self._domains:
+            if len(self._domains) > 8:
+                self._domains.clear()
+            area = 4 * np.pi * inside.mean()
+            self._domains[key] = DirectionGrid(self.quadrature[inside],
+                                               0.8 * site_spacing(area, target))
+        return self._domains[key]
 
     def _area(self, domain):
         """Solid angle of the domain [sr]."""
-        return 4 * np.pi * len(domain) / len(self.quadrature)
+        return 4 * np.pi * len(domain.points) / len(self.quadrature)
 
     def _weighted_vpls(self, light, sites, domain, cell):
         """Site power = intensity integrated over its Voronoi cell (Laine 2007 sec. 3.3),
         by quadrature over the domain's directions."""
         if sites is None or len(sites.direction) == 0:
             return vpl.VPLs.empty()
-        weight = light.intensity[None, :] * (light.attenuation(domain) * 4 * np.pi
+        weight = light.intensity[None, :] * (light.attenuation(domain.points) * 4 * np.pi
                                              / len(self.quadrature))[:, None]
         power = np.stack([np.bincount(cell, weight[:, c], minlength=len(sites.direction))
                           for c in range(3)], -1)
         out = sites.unit_vpls.subset(slice(None))
         out.flux = sites.unit_vpls.flux * power[sites.owner]
         return out
-
-
-class DirectionGrid:
-    """Unit directions binned into cubes of side `cell` over [-1, 1]^3: every direction
-    within chord distance ring * cell of a query lies in the (2 ring + 1)^3 cubes around
-    the query's own, so a search compares only those instead of every direction."""
-
-    def __init__(self, points, cell):
-        self.points = points
-        self.cell = float(cell)
-        self.n = int(np.ceil(2.0 / self.cell)) + 3      # cubes per axis, 1 of padding a side
-        keys = self.key(points)
-        self.order = np.argsort(keys, kind='stable')
-        # Points of cube k: order[first[k]:first[k] + count[k]].
-        self.first = np.searchsorted(keys[self.order], np.arange(self.n ** 3 + 1))
-        self.count = np.diff(self.first)
-
-    def key(self, directions):
-        cube = np.clip(np.floor((directions + 1.0) / self.cell).astype(np.int64) + 1,
-                       1, self.n - 2)
-        return (cube[:, 0] * self.n + cube[:, 1]) * self.n + cube[:, 2]
-
-    def candidates(self, directions, ring=1):
-        """(query, point) index pairs, queries ascending: every point in the cubes within
-        `ring` cubes of each query direction's cube (a ring beyond the padding wraps to
-        other cubes: extra candidates, never missing ones)."""
-        r = np.arange(-ring, ring + 1)
-        offsets = ((r[:, None, None] * self.n + r[None, :, None]) * self.n
-                   + r[None, None, :]).ravel()
-        key = (self.key(directions)[:, None] + offsets).ravel()
-        if ring > 1:
-            key = np.clip(key, 0, self.n ** 3 - 1)
-        occupied = np.flatnonzero(self.count[key])
-        query, key = occupied // len(offsets), key[occupied]
-        count = self.count[key]
-        position = (np.repeat(self.first[key] - np.cumsum(count) + count, count)
-                    + np.arange(count.sum()))
-        return np.repeat(query, count), self.order[position]
-
-
-def site_spacing(domain_area, count):
-    """Mean distance between `count` evenly spread sites on a domain of that area."""
-    return float(np.sqrt(domain_area / max(count, 1)))
-
-
-def chord(cosine):
-    """Straight-line distance between unit vectors with this cosine."""
-    return np.sqrt(np.maximum(2.0 - 2.0 * cosine, 0.0))
-
-
-def nearest_point(grid, queries, skip_self=False, exact=True):
-    """(index, cosine) of each query's nearest grid point, and the number of direction
-    pairs compared. A query compares the points of the cubes around its own: one ring
-    of cubes is exact when the best lies within one cube side, two rings within two;
-    the few queries left (large empty regions) compare all points, or with exact=False
-    keep cosine -2 (nothing within a cube side). skip_self: the queries are the grid's
-    points, each excluding itself."""
-    best = np.full(len(queries), -2.0)
-    index = np.zeros(len(queries), np.int64)
-    todo, compared = np.arange(len(queries)), 0
-    for ring in (1, 2) if exact else (1,):
-        query, point = grid.candidates(queries[todo], ring)
-        query = todo[query]
-        cosine = sum(queries[:, a][query] * grid.points[:, a][point] for a in range(3))
-        if skip_self:
-            cosine[query == point] = -2.0
-        if len(query):
-            start = np.flatnonzero(np.r_[True, query[1:] != query[:-1]])
-            best[query[start]] = np.maximum.reduceat(cosine, start)
-            won = cosine == best[query]
-            index[query[won]] = point[won]
-        compared += len(query)
-        todo = todo[chord(best[todo]) > ring * grid.cell]
-    if exact and len(todo) and len(grid.points):
-        cosine = queries[todo] @ grid.points.T
-        if skip_self:
-            cosine[np.arange(len(todo)), todo] = -2.0
-        index[todo], best[todo] = cosine.argmax(1), cosine.max(1)
-        compared += len(todo) * len(grid.points)
-    return index, best, compared
-
-
-def largest_empty_circles(domain, best, cell, count, spacing, first):
-    """Greedy farthest-point insertion over the domain's quadrature directions: each new
-    site goes to the centre of the largest empty circle left (Laine 2007 sec. 3.2).
-    best, cell: cosine to and index of each domain direction's nearest site. A new site
-    can only become the nearest of the directions inside its circle, so only those
-    (found through a grid of the domain) are compared. Returns the chosen indices, the
-    Voronoi cells with the new sites (numbered from `first`) and the number of direction
-    pairs compared."""
-    grid = DirectionGrid(domain, spacing)
-    best, cell = best.copy(), cell.copy()
-    chosen, compared = [], 0
-    for k in range(min(count, len(domain))):
-        i = int(np.argmin(best))
-        _, near = grid.candidates(domain[i:i + 1], int(np.ceil(chord(best[i]) / spacing)))
-        cosine = domain[near] @ domain[i]
-        closer = cosine > best[near]
-        best[near[closer]] = cosine[closer]
-        cell[near[closer]] = first + k
-        chosen.append(i)
-        compared += len(near)
-    return np.array(chosen, np.int64), cell, compared

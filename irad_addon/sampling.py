@@ -4,6 +4,8 @@ Keller 1997 draws particles from the Halton sequence; we scramble its digits wit
 one random permutation per digit and dimension (random digit scrambling), which
 keeps the stratification and decorrelates the high dimensions and the frames.
 """
+import functools
+
 import numpy as np
 
 _PRIMES = None
@@ -45,14 +47,22 @@ def _digit_permutations(base, rng):
     return np.array([rng.permutation(base) for _ in range(digits)])
 
 
+@functools.lru_cache(maxsize=16)
+def scrambling(seed, dims):
+    """The digit permutations of each dimension for `seed` (None for seed 0): drawn once
+    per seed, as drawing them costs more than a few hundred points."""
+    if not seed:
+        return (None,) * dims
+    rng = np.random.default_rng(seed)
+    return tuple(_digit_permutations(int(base), rng) for base in primes(dims))
+
+
 def halton(count, dims, seed=0, start=0):
     """(count, dims) points of the Halton sequence, indices start..start+count-1.
     seed 0 is the plain sequence; other seeds scramble the digits."""
     index = np.arange(start, start + count, dtype=np.int64)
-    rng = np.random.default_rng(seed) if seed else None
     out = np.empty((count, dims), np.float64)
-    for d, base in enumerate(primes(dims)):
-        perms = _digit_permutations(int(base), rng) if rng is not None else None
+    for d, (base, perms) in enumerate(zip(primes(dims), scrambling(seed, dims))):
         out[:, d] = radical_inverse(int(base), index, perms)
     return out
 
