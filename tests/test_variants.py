@@ -197,3 +197,17 @@ def test_incremental_recovers_at_once_when_the_light_jumps_behind_a_wall(core):
     assert infos[2]['removed'] == infos[0]['added'], infos
     assert (vpls.position[:, 0] > -1e-6).all()   # all in the room the light entered
     assert counts[2] > 0.8 * counts[0], counts
+
+
+def test_path_traced_incident_light_of_reverse_vpls_matches_converged_classic(core):
+    # Bidirectional IR's reverse VPLs get their indirect incident light E(y) by path
+    # tracing; its mean over surface points must match a converged light-path estimate.
+    data = closed_box_with_light(core)
+    frame = core.frame.prepare_frame(data)
+    gb = core.gbuffer.build_gbuffer(frame, data.camera, 1, np.random.default_rng(0))
+    traced = core.bidirectional.path_traced_irradiance(frame, gb, 64, 16,
+                                                       np.random.default_rng(1))[gb.hit]
+    vpls = core.vpl.trace_vpls(frame, 20000, 16, seed=0)
+    converged = core.gather.indirect_irradiance(frame, gb, vpls, 0.05,
+                                                np.zeros(len(gb.hit), np.int64), 1)[gb.hit]
+    assert abs(traced.mean() / converged.mean() - 1) < 0.03, (traced.mean(), converged.mean())
