@@ -342,6 +342,30 @@ def throughput_section(results):
     return lines + [""]
 
 
+def incremental_section(results):
+    inc = results.get("incremental")
+    if not inc:
+        return []
+    lines = ["## Incremental IR per animation frame", "",
+             f"benchmarks/incremental.py: a point light circles for {inc['frames']} frames; "
+             "each frame, variants.place_vpls places the VPLs for the new light position: "
+             "incremental IR (Laine 2007, its sites carried across frames) and classic IR "
+             "rebuilding every VPL with the fixed seed (the default) or a new seed per frame "
+             "(Animated Seed), interleaved frame by frame. Median per frame, frame 0 left "
+             "out; CPU time includes the ray tracer's threads.", "",
+             "| scene | particles | incremental ms | classic ms | animated seed ms | "
+             "classic / incremental (wall) | (CPU) | rays per frame: incremental / classic "
+             "| ratio |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in inc["rows"]:
+        i, c, a = r["incremental"], r["classic"], r["classic, animated seed"]
+        lines.append(
+            f"| {r['scene']} | {r['particles']} | {1e3 * i['wall']:.1f} | "
+            f"{1e3 * c['wall']:.1f} | {1e3 * a['wall']:.1f} | **{c['wall'] / i['wall']:.2f}** "
+            f"| {c['cpu'] / i['cpu']:.2f} | {i['rays']:.0f} / {c['rays']:.0f} | "
+            f"{c['rays'] / max(i['rays'], 1):.1f} |")
+    return lines + [""]
+
+
 def write(results, out_dir):
     """README.md and the plots; returns the README path."""
     for scene in results.get("error_vs_time", []):
@@ -369,7 +393,7 @@ def write(results, out_dir):
                               f"average {r['load']})" for k, r in kept.items())
                   + f". The other sections are from this run ({m['date']}).", ""]
     lines += headline(results) + error_section(results) + scaling_section(results)
-    lines += throughput_section(results)
+    lines += throughput_section(results) + incremental_section(results)
     path = os.path.join(out_dir, "README.md")
     with open(path, "w") as fh:
         fh.write("\n".join(lines))

@@ -4,8 +4,9 @@ Environment:
   BENCH_QUICK=1        smoke run (< 5 min once references are cached): Cornell box only,
                        short ladders; writes out/bench-quick/ unless BENCH_OUT is set
   BENCH_OUT=dir        report folder (default benchmarks/report)
-  BENCH_SECTIONS=...   comma list of error,scaling,throughput (default all); the
-                       sections not run are kept from the folder's last results.json
+  BENCH_SECTIONS=...   comma list of error,scaling,throughput,incremental (default
+                       all); the sections not run are kept from the folder's last
+                       results.json
   BENCH_SCENES=...     comma list of error_vs_time.SCENES names (default all; quick:
                        cornell_area)
   BENCH_TIME_LIMIT=s   a ladder stops before a rung predicted (linearly) to take longer
@@ -29,11 +30,12 @@ addon_install.prepare_user_resources()   # before `import bpy`
 
 import bpy  # noqa: E402
 
-from benchmarks import error_vs_time, report, scaling, throughput  # noqa: E402
+from benchmarks import error_vs_time, incremental, report, scaling, throughput  # noqa: E402
 
 
-SECTIONS = ("error", "scaling", "throughput")
-SECTION_KEYS = {"error_vs_time": "error", "scaling": "scaling", "throughput": "throughput"}
+SECTIONS = ("error", "scaling", "throughput", "incremental")
+SECTION_KEYS = {"error_vs_time": "error", "scaling": "scaling", "throughput": "throughput",
+                "incremental": "incremental"}
 
 
 def options():
@@ -121,6 +123,9 @@ def main():
     if "throughput" in opts["sections"]:
         print("throughput ceiling", flush=True)
         results["throughput"] = throughput.run(addon, opts["quick"])
+    if "incremental" in opts["sections"]:
+        print("incremental IR per frame", flush=True)
+        results["incremental"] = incremental.run(addon, opts["quick"])
     if "scaling" in opts["sections"]:
         print("scaling (one process per point)", flush=True)
         results["scaling"] = scaling.run(opts["quick"], opts["time_limit"] * 2)
