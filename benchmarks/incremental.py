@@ -25,11 +25,12 @@ KINDS = (("incremental", 'INCREMENTAL', None), ("classic", 'CLASSIC', 0),
 
 
 def point_lit(build, position):
-    """A scene of `build()` with its lights replaced by one point light."""
+    """A scene of `build()` lit only by one point light (no other lights, black world)."""
     def make():
         scene = build()
         for ob in [o for o in scene.objects if o.type == 'LIGHT']:
             bpy.data.objects.remove(ob)
+        scenes.world(scene, (0.0, 0.0, 0.0), 0.0)
         scenes.light(scene, "POINT", 100.0, position)
         return scene
     return make
@@ -43,24 +44,6 @@ SCENES = (
     ("high-poly: floor and 4 spheres (1M triangles)",
      point_lit(lambda: scenes.high_poly(1_000_000), (0.0, -1.0, 2.0)), 1.0, 2.0),
 )
-
-
-class CountingTracer:
-    """The frame's RayTracer, counting the rays asked of it."""
-
-    def __init__(self, tracer):
-        self.tracer, self.rays, self.fingerprint = tracer, 0, tracer.fingerprint
-
-    def intersect(self, origins, *args, **kwargs):
-        self.rays += len(origins)
-        return self.tracer.intersect(origins, *args, **kwargs)
-
-    def occluded(self, origins, *args, **kwargs):
-        self.rays += len(origins)
-        return self.tracer.occluded(origins, *args, **kwargs)
-
-    def offset_scale(self):
-        return self.tracer.offset_scale()
 
 
 def orbit(light, radius, height, frame):
@@ -80,7 +63,7 @@ def measure(core, data, radius, height, particles):
         frame = core.frame.prepare_frame(
             replace(data, lights=[orbit(light, radius, height, i)]), cache)
         for label, variant, seed in KINDS:
-            counting = CountingTracer(frame.tracer)
+            counting = core.rays.CountingTracer(frame.tracer)
             settings = core.render.RenderSettings(
                 particles=particles, variant=variant, seed=i if seed == "frame" else 0)
             wall, cpu = time.perf_counter(), time.process_time()

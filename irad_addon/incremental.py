@@ -16,7 +16,8 @@ of cubes over the directions, so their cost grows with the quadrature and site c
 not with their product; the domain's grid is kept while the domain stays. New sites' bounces draw on one Halton sequence (Keller 1997).
 Beyond the paper's one bounce, each site keeps its whole multi-bounce path: the later
 vertices do not depend on where the light is, and their flux scales with the first
-hit's, so they stay unbiased for that first hit. Other emitters get classic VPLs.
+hit's, so they stay unbiased for that first hit. Other emitters get classic VPLs,
+kept while those emitters and the geometry stay.
 """
 from dataclasses import dataclass, replace
 
@@ -25,7 +26,7 @@ import numpy as np
 from . import sampling, vpl
 from .direction_search import (DirectionGrid, chord, largest_empty_circles, nearest_point,
                                nearest_sites, site_spacing)
-from .lights import PointEmitter, SpotEmitter
+from .lights import PointEmitter, SpotEmitter, emitters_fingerprint
 
 BUDGET_SHARE = 0.05          # new sites per frame, as a share of the target count
 CROWDED = 0.75               # sites closer than this share of the ideal spacing may go
@@ -78,6 +79,7 @@ class IncrementalVPLs:
         self._halton = (None, 0, np.zeros((0, 0)))   # (seed and dims, first index, points)
         self.quadrature = fibonacci_sphere(QUADRATURE_DIRECTIONS)
         self._domains = {}            # (domain mask, target) -> DirectionGrid
+        self._classic = (None, None)  # (key, VPLs) of the emitters that are not incremental
 
     def update(self, frame, settings):
         lights = [e for e in frame.emitters if incremental_emitter(e)]
@@ -102,13 +104,25 @@ class IncrementalVPLs:
             removed, added = removed + gone, added + new
             found.append(self._weighted_vpls(light, sites, domain, cell))
         if others:
-            rest = replace(frame, emitters=others)
-            found.append(vpl.trace_vpls(rest, int(sum(c for e, c in zip(frame.emitters, counts)
-                                                      if not incremental_emitter(e))),
-                                        settings.max_bounces, seed=settings.seed))
+            found.append(self._classic_vpls(frame, others, int(sum(
+                c for e, c in zip(frame.emitters, counts) if not incremental_emitter(e))),
+                settings))
         vpls = vpl.VPLs.concatenate(found)
         return vpls, {'removed': removed, 'added': added, 'rays': self.rays,
+                      'incremental_vpls': int(sum(v.count for v in found[:len(lights)])),
                       'compared': self.compared}
+
+    def _classic_vpls(self, frame, others, particles, settings):
+        """Classic VPLs of the other emitters, kept while they, the geometry and the
+        settings stay (then tracing them again would give the very same VPLs)."""
+        key = (frame.tracer.fingerprint, emitters_fingerprint(others), particles,
+               settings.seed, settings.max_bounces, settings.sequence)
+        if key != self._classic[0]:
+            vpls = vpl.trace_vpls(replace(frame, emitters=others), particles,
+                                  settings.max_bounces, seed=settings.seed,
+                                  sequence=settings.sequence)
+            self._classic = (key, vpls)
+        return self._classic[1]
 
     def _validate(self, frame, light, sites, target, domain):
         """Drop sites the light's new position cannot use (Laine 2007, sec. 3.1)."""

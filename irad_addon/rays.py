@@ -146,6 +146,24 @@ class RayTracer:
         return np.ascontiguousarray(np.minimum(tfar, 1e30))
 
 
+class CountingTracer:
+    """A RayTracer that counts the rays asked of it (`rays`): for cost measurements."""
+
+    def __init__(self, tracer):
+        self.tracer, self.rays, self.fingerprint = tracer, 0, tracer.fingerprint
+
+    def intersect(self, origins, *args, **kwargs):
+        self.rays += len(origins)
+        return self.tracer.intersect(origins, *args, **kwargs)
+
+    def occluded(self, origins, *args, **kwargs):
+        self.rays += len(origins)
+        return self.tracer.occluded(origins, *args, **kwargs)
+
+    def offset_scale(self):
+        return self.tracer.offset_scale()
+
+
 class RayTracerCache:
     """Keeps the last frame's RayTracer and reuses it while the triangles are unchanged."""
 
