@@ -45,6 +45,8 @@ def parallel_map(function, ranges):
 
 def split_ranges(count, pieces, minimum=_TASK_RAYS):
     pieces = max(1, min(pieces, -(-count // minimum)))
+    if pieces == 1:   # most calls: skip building edges for one range
+        return [(0, int(count))] if count > 0 else []
     edges = np.linspace(0, count, pieces + 1).astype(np.int64)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
