@@ -51,9 +51,17 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
 
 
 def vpl_subsets(vpls, subsets):
-    """Interleave the VPLs into `subsets` groups (j mod subsets); each group's flux is
-    scaled by `subsets` so that the groups' average is the full estimate."""
-    return [(vpls.subset(slice(k, None, subsets)), float(subsets)) for k in range(subsets)]
+    """Interleave the VPLs into `subsets` groups (j mod subsets), each group's flux
+    scaled by N / (its size): every group alone estimates the whole set's light, so a
+    pixel that sees only a few groups (next to an edge, where the discontinuity buffer
+    has few neighbours) is not brighter or darker for the sizes of the groups it sees.
+    With fewer VPLs than groups, group k holds VPL k mod N."""
+    count = vpls.count
+    if count < subsets:
+        return [(vpls.subset(slice(k % count, k % count + 1)), float(count))
+                for k in range(subsets)] if count else []
+    return [(vpls.subset(slice(k, None, subsets)), count / len(range(k, count, subsets)))
+            for k in range(subsets)]
 
 
 def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distance2,

@@ -70,3 +70,25 @@ def test_vpls_facing_away_from_every_visible_point_are_not_gathered(addon):
     # Faces down onto the points: kept; faces up, or away beyond x = 3: culled; the
     # last faces +x from x = -0.5 towards the points: kept.
     assert gather.facing_points(vpls, points).tolist() == [True, False, False, True]
+
+
+def test_each_interleaved_group_alone_estimates_the_whole_set(addon):
+    # 370 VPLs in 256 groups: 114 groups hold two, 142 hold one. A pixel next to an
+    # edge sees only a few groups, so each must estimate all the light by itself.
+    core = addon.irad_addon
+    rng = np.random.default_rng(3)
+    count, groups = 370, 256
+    flux = rng.uniform(0.5, 1.5, size=(count, 3))
+    vpls = core.vpl.VPLs(rng.random((count, 3)), np.tile([0, 0, 1.0], (count, 1)), flux,
+                         np.ones(count, np.int32))
+    pieces = core.gather.vpl_subsets(vpls, groups)
+    sizes = np.array([subset.count for subset, _ in pieces])
+    estimates = np.array([scale * subset.flux.sum() for subset, scale in pieces])
+    total = flux.sum()
+    assert sorted(set(sizes)) == [1, 2]
+    for size in (1, 2):   # equal in expectation whatever the group's size
+        assert estimates[sizes == size].mean() == pytest.approx(total, rel=0.1)
+    assert estimates.mean() == pytest.approx(total, rel=0.05)
+    # Fewer VPLs than groups: every group still holds one, scaled to the whole set.
+    few = core.gather.vpl_subsets(vpls.subset(slice(0, 10)), 16)
+    assert all(subset.count == 1 and scale == 10 for subset, scale in few)
