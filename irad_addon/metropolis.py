@@ -151,6 +151,10 @@ class PathStore:
         cdf /= cdf[-1]
         drawn = np.searchsorted(cdf, (rng.random() + np.arange(count)) / count, side='right')
         index, times = np.unique(rows[np.minimum(drawn, len(rows) - 1)], return_counts=True)
+        # Listed in random order: the gather's interleaved groups (every S-th VPL) are
+        # then alike, so each group alone is an unbiased estimate (gather.vpl_subsets).
+        order = rng.permutation(len(index))
+        index, times = index[order], times[order]
         vpls = vpls.subset(index)
         vpls.flux = vpls.flux * (times * normalisation / (count * f_vpl[index]))[:, None]
         return vpls
