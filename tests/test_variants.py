@@ -109,24 +109,6 @@ def test_metropolis_mean_over_seeds_matches_converged_classic(core):
         mean, standard_error, truth)
 
 
-class CountingTracer:
-    """A RayTracer proxy that counts the rays asked of it."""
-
-    def __init__(self, tracer):
-        self.tracer, self.rays, self.fingerprint = tracer, 0, tracer.fingerprint
-
-    def intersect(self, origins, *args, **kwargs):
-        self.rays += len(origins)
-        return self.tracer.intersect(origins, *args, **kwargs)
-
-    def occluded(self, origins, *args, **kwargs):
-        self.rays += len(origins)
-        return self.tracer.occluded(origins, *args, **kwargs)
-
-    def offset_scale(self):
-        return self.tracer.offset_scale()
-
-
 def test_incremental_is_cheaper_steadier_and_close_to_classic(core):
     from dataclasses import replace
     cache = core.rays.RayTracerCache()
@@ -140,7 +122,7 @@ def test_incremental_is_cheaper_steadier_and_close_to_classic(core):
         frame = core.frame.prepare_frame(data, cache)
         gb = core.gbuffer.build_gbuffer(frame, data.camera, 1, np.random.default_rng(0))
         for kind in images:
-            counting = CountingTracer(frame.tracer)
+            counting = core.rays.CountingTracer(frame.tracer)
             settings = core.render.RenderSettings(
                 particles=16384 if kind == 'REFERENCE' else 1024, max_bounces=16,
                 variant='CLASSIC' if kind == 'REFERENCE' else kind,
