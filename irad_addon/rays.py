@@ -149,10 +149,14 @@ class RayTracer:
 
 
 class CountingTracer:
-    """A RayTracer that counts the rays asked of it (`rays`): for cost measurements."""
+    """A RayTracer that counts the rays asked of it (`rays`): for cost measurements.
+    Everything else is the tracer's own."""
 
     def __init__(self, tracer):
-        self.tracer, self.rays, self.fingerprint = tracer, 0, tracer.fingerprint
+        self.tracer, self.rays = tracer, 0
+
+    def __getattr__(self, name):
+        return getattr(self.tracer, name)
 
     def intersect(self, origins, *args, **kwargs):
         self.rays += len(origins)
@@ -161,9 +165,6 @@ class CountingTracer:
     def occluded(self, origins, *args, **kwargs):
         self.rays += len(origins)
         return self.tracer.occluded(origins, *args, **kwargs)
-
-    def offset_scale(self):
-        return self.tracer.offset_scale()
 
 
 class RayTracerCache:

@@ -65,20 +65,31 @@ def pair_transfer(frame, pilot, points, normals, min_distance2=0.0):
 
 
 def _transfer_block(frame, pilot, points, normals, min_distance2, eps):
-    d = points[None, :, :] - pilot.position[:, None, :]
-    dist2 = np.maximum(np.einsum('kcj,kcj->kc', d, d), 1e-30)
+    # Every dot product with d = y - x as a matrix product (n.d = n.y - n.x), relative
+    # to the block's centre: no (K, C, 3) arrays (as gather.vpl_irradiance_chunk).
+    centre = points.mean(0)
+    X, Y = pilot.position - centre, points - centre
+    cross = X @ Y.T
+    dist2 = np.maximum(np.einsum('ij,ij->i', X, X)[:, None]
+                       + np.einsum('ij,ij->i', Y, Y)[None, :] - 2 * cross, 1e-30)
     inv = 1.0 / np.sqrt(dist2)
-    cos_x = np.einsum('kcj,kj->kc', d, pilot.normal) * inv
-    cos_y = -np.einsum('kcj,cj->kc', d, normals) * inv
-    above = np.einsum('kcj,kj->kc', d, pilot.geo_normal) > 0
-    valid = (cos_x > 0) & (cos_y > 0) & above
+    cos_x = (pilot.normal @ Y.T - np.einsum('ij,ij->i', pilot.normal, X)[:, None]) * inv
+    cos_y = (X @ normals.T - np.einsum('ij,ij->i', normals, Y)[None, :]) * inv
+    above = pilot.geo_normal @ Y.T - np.einsum('ij,ij->i', pilot.geo_normal, X)[:, None]
+    valid = (cos_x > 0) & (cos_y > 0) & (above > 0)
     weight = np.where(valid, cos_x * cos_y / np.maximum(dist2, min_distance2), 0.0)
     pairs = np.flatnonzero(valid)
     if len(pairs):
-        k, c = np.unravel_index(pairs, valid.shape)
-        origin = pilot.position[k] + pilot.geo_normal[k] * eps
-        tfar = (1 - 1e-5) - 2 * eps * inv[k, c] / np.maximum(cos_y[k, c], 1e-2)
-        blocked = frame.tracer.occluded(origin, d[k, c], tfar)
+        # Pairs run row by row (pilot point k): repeat each ray origin, in the tracer's
+        # float32 frame, instead of gathering it per pair.
+        tracer = frame.tracer
+        origin = np.repeat(tracer.to_local(pilot.position + pilot.geo_normal * eps),
+                           valid.sum(1), axis=0)
+        direction = np.take(tracer.to_local(points), pairs % len(points), axis=0)
+        direction -= origin
+        tfar = ((1 - 1e-5) - 2 * eps * inv.ravel()[pairs]
+                / np.maximum(cos_y.ravel()[pairs], 1e-2)).astype(np.float32)
+        blocked = tracer.occluded(origin, direction, tfar, local=True)
         weight.ravel()[pairs[blocked]] = 0.0
     return weight
 
