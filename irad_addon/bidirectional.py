@@ -21,7 +21,7 @@ import numpy as np
 
 from . import geometry, gather, sampling, vpl
 from .gbuffer import GBuffer, follow_mirrors, take_points, trace_surfaces
-from .metropolis import morton_code
+from .light_tree import morton_codes
 from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
 
 PILOT_CAMERA_POINTS = 256
@@ -121,18 +121,15 @@ def path_traced_irradiance(frame, points, paths, max_bounces, rng):
 def resample(flux, importance, count, rng, defensive=DEFENSIVE):
     """Systematic resampling of `count` draws with P_j = (1 - a) q_j / sum q +
     a |flux_j| / sum |flux| (Segovia 2006 sec. 3.3, plus a defensive share a).
-    Returns the drawn indices (unique) and their flux rescaled by n_j / (count P_j),
-    whose expectation is the candidates' flux."""
+    Returns the drawn indices (unique, in random order: sampling.systematic_draws) and
+    their flux rescaled by n_j / (count P_j), whose expectation is the candidates' flux."""
     power = luminance(flux)
     p = defensive * power / power.sum()
     if importance.sum() > 0:
         p += (1 - defensive) * importance / importance.sum()
     else:
         p = power / power.sum()
-    cdf = np.cumsum(p)
-    cdf /= cdf[-1]
-    draws = np.searchsorted(cdf, (rng.random() + np.arange(count)) / count, side='right')
-    index, times = np.unique(np.minimum(draws, len(p) - 1), return_counts=True)
+    index, times = sampling.systematic_draws(p, count, rng)
     return index, flux[index] * (times / (count * p[index]))[:, None]
 
 
@@ -165,7 +162,7 @@ def place_bidirectional(frame, gb, settings, rng):
     # Useful candidates along a space-filling curve: systematic resampling then
     # stratifies the drawn VPLs in space (no clumps and holes left by chance).
     useful = np.flatnonzero(luminance(flux) > 0)
-    useful = useful[np.argsort(morton_code(points[useful]), kind='stable')]
+    useful = useful[np.argsort(morton_codes(points[useful]), kind='stable')]
     candidates, transfer = candidates.subset(useful), transfer[:, useful]
     if candidates.count == 0:
         return vpl.VPLs.empty(), {'reverse_vpls': int(rev.width), 'candidates': 0}
@@ -173,12 +170,8 @@ def place_bidirectional(frame, gb, settings, rng):
     cap = 1.0 / max(clamp_distance(frame, candidates, settings.clamp), 1e-3 * frame.extent) ** 2
     importance = camera_importance(pilot, np.minimum(transfer, cap), candidates.flux)
     index, flux = resample(candidates.flux, importance, budget, rng)
-    # Drawn in curve order, listed in random order: the gather's interleaved subsets
-    # (every S-th VPL, gather.vpl_subsets) and each pixel's run of consecutive subsets
-    # must be random subsets, not one patch of the curve each.
-    order = rng.permutation(len(index))
-    chosen = candidates.subset(index[order])
-    chosen.flux = flux[order]
+    chosen = candidates.subset(index)
+    chosen.flux = flux
     return chosen, {'reverse_vpls': int(rev.width), 'candidates': int(candidates.count)}
 
 

@@ -17,7 +17,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import gather, vpl
+from . import gather, sampling, vpl
+from .light_tree import morton_codes
 from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
 
 # Measured on two rooms (tests/test_variants.py, 128 particles), mean relMSE over seeds
@@ -146,29 +147,12 @@ class PathStore:
         vpls, owner, f_vpl = self.rows()
         weight = self.pool_weights(owner, f_vpl, recorded, boot_paths, normalisation)
         rows = np.flatnonzero(weight > 0)
-        rows = rows[np.argsort(morton_code(vpls.position[rows]), kind='stable')]
-        cdf = np.cumsum(weight[rows])
-        cdf /= cdf[-1]
-        drawn = np.searchsorted(cdf, (rng.random() + np.arange(count)) / count, side='right')
-        index, times = np.unique(rows[np.minimum(drawn, len(rows) - 1)], return_counts=True)
-        # Listed in random order: the gather's interleaved groups (every S-th VPL) are
-        # then alike, so each group alone is an unbiased estimate (gather.vpl_subsets).
-        order = rng.permutation(len(index))
-        index, times = index[order], times[order]
+        rows = rows[np.argsort(morton_codes(vpls.position[rows]), kind='stable')]
+        drawn, times = sampling.systematic_draws(weight[rows], count, rng)
+        index = rows[drawn]
         vpls = vpls.subset(index)
         vpls.flux = vpls.flux * (times * normalisation / (count * f_vpl[index]))[:, None]
         return vpls
-
-
-def morton_code(position, bits=10):
-    """Z-order index of points in their bounding box: near in space, near in order."""
-    lo, hi = position.min(0), position.max(0)
-    cell = ((position - lo) / np.maximum(hi - lo, 1e-30) * ((1 << bits) - 1)).astype(np.int64)
-    code = np.zeros(len(position), np.int64)
-    for bit in range(bits):
-        for axis in range(3):
-            code |= ((cell[:, axis] >> bit) & 1) << (3 * bit + axis)
-    return code
 
 
 def run_chains(space, state, f_state, state_id, steps, store, rng, tries):

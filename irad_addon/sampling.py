@@ -67,6 +67,20 @@ def halton(count, dims, seed=0, start=0):
     return out
 
 
+def systematic_draws(weights, count, rng):
+    """`count` draws in proportion to `weights` by systematic resampling (one uniform
+    offset shared by all draws: every weight w gets floor or ceil of count w / sum w).
+    Returns the distinct indices drawn and how often each, in random order: VPL lists
+    are split into interleaved groups by position (gather.vpl_subsets), and each group
+    must not take one stretch of whatever order the weights came in."""
+    cdf = np.cumsum(weights)
+    cdf = cdf / cdf[-1]
+    drawn = np.searchsorted(cdf, (rng.random() + np.arange(count)) / count, side='right')
+    index, times = np.unique(np.minimum(drawn, len(weights) - 1), return_counts=True)
+    order = rng.permutation(len(index))
+    return index[order], times[order]
+
+
 def hammersley(count, dims, seed=0):
     """Hammersley points: i/count in the first dimension, Halton in the rest,
     shifted by a Cranley-Patterson rotation when seed != 0."""
