@@ -13,7 +13,8 @@ it) with the path a particle sent that way took. Each frame, after the light mov
   powers sum to the light's power (sec. 3.3).
 The nearest-site searches behind the last two (direction_search.py) go through grids
 of cubes over the directions, so their cost grows with the quadrature and site counts,
-not with their product; the domain's grid is kept while the domain stays. New sites' bounces draw on one Halton sequence (Keller 1997).
+not with their product; the domain's grid is kept while the domain stays. New sites'
+bounces draw on one Halton sequence (Keller 1997).
 Beyond the paper's one bounce, each site keeps its whole multi-bounce path: the later
 vertices do not depend on where the light is, and their flux scales with the first
 hit's, so they stay unbiased for that first hit. Other emitters get classic VPLs,
@@ -24,9 +25,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import sampling, vpl
+from .temporal import emitters_fingerprint
 from .direction_search import (DirectionGrid, chord, largest_empty_circles, nearest_point,
                                nearest_sites, site_spacing)
-from .lights import PointEmitter, SpotEmitter, emitters_fingerprint
+from .lights import PointEmitter, SpotEmitter
 
 BUDGET_SHARE = 0.05          # new sites per frame, as a share of the target count
 CROWDED = 0.75               # sites closer than this share of the ideal spacing may go
@@ -146,7 +148,7 @@ class IncrementalVPLs:
         self.rays += len(r) + len(p)
         sites = replace(sites, direction=direction).keep(ok)
         spare = max(0, int(BUDGET_SHARE * target) - int((~ok).sum()))
-        return self._thin(sites, spare, self._area(domain)), int((~ok).sum())
+        return self._thin(sites, spare, self._area(len(domain.points))), int((~ok).sum())
 
     def _thin(self, sites, spare, area):
         """Remove up to `spare` of the most crowded sites (closer to a neighbour than
@@ -241,14 +243,14 @@ class IncrementalVPLs:
         if key not in self._domains:
             if len(self._domains) > 8:
                 self._domains.clear()
-            area = 4 * np.pi * inside.mean()
+            area = self._area(int(inside.sum()))
             self._domains[key] = DirectionGrid(self.quadrature[inside],
                                                0.8 * site_spacing(area, target))
         return self._domains[key]
 
-    def _area(self, domain):
-        """Solid angle of the domain [sr]."""
-        return 4 * np.pi * len(domain.points) / len(self.quadrature)
+    def _area(self, directions):
+        """Solid angle [sr] of a domain of this many quadrature directions."""
+        return 4 * np.pi * directions / len(self.quadrature)
 
     def _weighted_vpls(self, light, sites, domain, cell):
         """Site power = intensity integrated over its Voronoi cell (Laine 2007 sec. 3.3),

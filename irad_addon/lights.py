@@ -11,8 +11,6 @@ Sun and world particles enter the scene through its light portals when it has an
 disc or sphere around the whole scene. Portals change only where particles start,
 never the light: they do not emit, block or change the direct light.
 """
-import hashlib
-
 import numpy as np
 
 from . import geometry, sampling
@@ -477,29 +475,3 @@ def build_emitters(scene_lights, triangles, emission, world_radiance, bounds,
     if np.all(np.isfinite(world)) and world.max() > 0:
         emitters.append(WorldEmitter(world, bounds, openings))
     return emitters
-
-
-def emitters_fingerprint(emitters):
-    """16 bytes that change whenever any emitter's data changes (type, arrays, numbers,
-    portals): equal fingerprints with the same seed and counts give the same particles."""
-    digest = hashlib.blake2b(digest_size=16)
-
-    def add(value):
-        if isinstance(value, np.ndarray):
-            digest.update(f"{value.dtype.str}{value.shape}".encode())
-            digest.update(np.ascontiguousarray(value).tobytes())
-        elif isinstance(value, (list, tuple)):
-            digest.update(b"[")
-            for item in value:
-                add(item)
-            digest.update(b"]")
-        elif hasattr(value, "__dict__"):
-            digest.update(type(value).__name__.encode())
-            for name, item in sorted(vars(value).items()):
-                digest.update(name.encode())
-                add(item)
-        else:
-            digest.update(repr(value).encode())
-
-    add(list(emitters))
-    return digest.digest()

@@ -54,7 +54,10 @@ def scrambling(seed, dims):
     if not seed:
         return (None,) * dims
     rng = np.random.default_rng(seed)
-    return tuple(_digit_permutations(int(base), rng) for base in primes(dims))
+    tables = tuple(_digit_permutations(int(base), rng) for base in primes(dims))
+    for table in tables:   # shared by every later call: read-only
+        table.flags.writeable = False
+    return tables
 
 
 def halton(count, dims, seed=0, start=0):

@@ -29,6 +29,32 @@ def light_setup_key(scene, settings, geometry_key):
     return h.digest()
 
 
+def emitters_fingerprint(emitters):
+    """16 bytes that change whenever any emitter's data changes (type, arrays, numbers,
+    portals): equal fingerprints with the same seed and counts give the same particles."""
+    digest = hashlib.blake2b(digest_size=16)
+
+    def add(value):
+        if isinstance(value, np.ndarray):
+            digest.update(f"{value.dtype.str}{value.shape}".encode())
+            digest.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, (list, tuple)):
+            digest.update(b"[")
+            for item in value:
+                add(item)
+            digest.update(b"]")
+        elif hasattr(value, "__dict__"):
+            digest.update(type(value).__name__.encode())
+            for name, item in sorted(vars(value).items()):
+                digest.update(name.encode())
+                add(item)
+        else:
+            digest.update(repr(value).encode())
+
+    add(list(emitters))
+    return digest.digest()
+
+
 class VplCache:
     """The last frame's VPLs, handed out again while their light setup is unchanged."""
 
