@@ -7,6 +7,8 @@ camera rays per pixel each take the mean irradiance of the shading samples on th
 same surface, in their own pixel or else a neighbour (the split of coverage and
 shading of MSAA and of decoupled sampling, Ragan-Kelley et al. 2011).
 """
+from dataclasses import dataclass
+
 import numpy as np
 
 # Two samples lie on the same surface when their geometric normals agree within ~25
@@ -94,32 +96,54 @@ def uniform_pixels(gb):
     return uniform
 
 
-def irradiance_at_coverage(cov, gb, *irradiances):
-    """Each (S, 3) shading-sample irradiance carried to the coverage samples that see
-    a surface: the mean over the shading samples on the same surface in their own
-    pixel, else in the neighbouring pixels; a sub-pixel sliver no shading sample lies
-    on takes the nearest one facing the same way; misses and holdouts get zero."""
-    out = [np.zeros((len(cov.hit), 3)) for _ in irradiances]
+@dataclass
+class CoverageMap:
+    """Which shading samples each coverage sample takes its irradiance from: the pixel
+    mean for `quick` (pixels on one surface), else weights over candidates per stage.
+    It depends on the G-buffers only, so a still camera keeps it across frames."""
+    count: int            # coverage samples
+    samples: int          # shading samples per pixel
+    quick: np.ndarray     # coverage samples that take their pixel's mean
+    quick_pixel: np.ndarray
+    stages: list          # [(coverage samples, candidates (n, K), weights (n, K))]
+
+    def carry(self, E):
+        """(S, 3) shading-sample irradiance -> (coverage samples, 3)."""
+        out = np.zeros((self.count, 3))
+        pixel_mean = E.reshape(self.samples, -1, 3).mean(0)
+        out[self.quick] = pixel_mean[self.quick_pixel]
+        for todo, candidates, weights in self.stages:
+            out[todo] = np.einsum('nk,nkc->nc', weights, E[candidates])
+        return out
+
+
+def coverage_map(cov, gb):
+    """The CoverageMap of irradiance_at_coverage."""
     todo = np.flatnonzero(cov.hit & ~cov.holdout)
     # Fast path: a pixel whose shading samples share one surface, and coverage samples
     # on that surface (the first shading sample stands for it).
-    count = gb.width * gb.height
     pixel = cov.pixel[todo]
     quick = uniform_pixels(gb)[pixel]
     quick[quick] = same_surface(cov.position[todo[quick]], cov.geo_normal[todo[quick]],
                                 cov.depth[todo[quick]], gb.position[pixel[quick]],
                                 gb.geo_normal[pixel[quick]], gb.depth[pixel[quick]])
-    for E, E_cov in zip(irradiances, out):
-        pixel_mean = E.reshape(gb.samples, count, 3).mean(0)
-        E_cov[todo[quick]] = pixel_mean[pixel[quick]]
+    result = CoverageMap(len(cov.hit), gb.samples, todo[quick], pixel[quick], [])
     todo = todo[~quick]
     all_pixels = [(0, 0)] + NEIGHBOURS
     for offsets, strict in (([(0, 0)], True), (NEIGHBOURS, True), (all_pixels, False)):
         if len(todo) == 0:
             break
         candidates, weights = surface_weights(cov, gb, todo, offsets, strict)
-        safe = np.maximum(candidates, 0)
-        for E, E_cov in zip(irradiances, out):
-            E_cov[todo] = np.einsum('nk,nkc->nc', weights, E[safe])
+        result.stages.append((todo, np.maximum(candidates, 0), weights))
         todo = todo[weights.sum(1) == 0]
-    return out
+    return result
+
+
+def irradiance_at_coverage(cov, gb, *irradiances, coverage=None):
+    """Each (S, 3) shading-sample irradiance carried to the coverage samples that see
+    a surface: the mean over the shading samples on the same surface in their own
+    pixel, else in the neighbouring pixels; a sub-pixel sliver no shading sample lies
+    on takes the nearest one facing the same way; misses and holdouts get zero.
+    coverage: the G-buffers' CoverageMap, if already made."""
+    coverage = coverage or coverage_map(cov, gb)
+    return [coverage.carry(E) for E in irradiances]

@@ -67,7 +67,16 @@ def vpl_subsets(vpls, subsets):
 def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distance2,
                          tracer, eps, visible=None):
     """Irradiance at points P from VPLs: sum_j flux_j/pi cos_x cos_y / max(d^2, dmin^2) V.
-    The VPL emits with a cosine lobe (Keller 1997, eq. 5).
+    The VPL emits with a cosine lobe (Keller 1997, eq. 5)."""
+    transfer = vpl_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps,
+                            visible)
+    return (transfer @ vpl_flux.astype(np.float32)).astype(np.float64) / np.pi
+
+
+def vpl_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps,
+                 visible=None):
+    """float32 (points, VPLs): cos_x cos_y / max(d^2, dmin^2) V per pair, what each
+    VPL's flux / pi becomes at each point (the flux-free part of the gather).
 
     Every pairwise dot product is one small matrix product (n.(y - x) = n.y - n.x),
     so numpy makes a handful of passes over the (points x VPLs) arrays; coordinates
@@ -101,14 +110,41 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
         direction = np.take(tracer.to_local(vpl_position), light, axis=0)
         direction -= origin
         d = np.sqrt(dist2.ravel()[pairs])
-        cos_vpl = cos_y.ravel()[pairs] / d
-        tfar = f32(1 - 1e-5) - f32(2 * eps) / (d * np.maximum(cos_vpl, f32(1e-2)))
+        tfar = segment_end(d, cos_y.ravel()[pairs] / d, eps)
         if visible is None:
             blocked = tracer.occluded(origin, direction, tfar, threads=False, local=True)
         else:
             blocked = ~visible(origin + tracer.center, direction, tfar)   # world frame
         weight.ravel()[pairs[blocked]] = 0
-    return (weight @ vpl_flux.astype(f32)).astype(np.float64) / np.pi
+    return weight
+
+
+def segment_end(distance, cos_vpl, eps):
+    """tfar of a shadow segment from a point to a VPL given as the unnormalised
+    direction (t in [0, 1)): shortened at the VPL's end by the offset, more at grazing
+    angles, so that the VPL's own surface does not block it."""
+    f32 = np.float32
+    return f32(1 - 1e-5) - f32(2 * eps) / (distance * np.maximum(cos_vpl, f32(1e-2)))
+
+
+def pair_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps):
+    """float32 (n,): vpl_transfer's term for n (point, VPL) pairs given row by row,
+    for sparse pair lists (transfer_reuse.py's new VPLs, a few per point)."""
+    d = vpl_position - P
+    dist2 = np.maximum(np.einsum('ij,ij->i', d, d), 1e-30)
+    cos_x = np.einsum('ij,ij->i', N, d)
+    cos_y = -np.einsum('ij,ij->i', vpl_normal, d)
+    valid = (cos_x > 0) & (cos_y > 0) & (np.einsum('ij,ij->i', G, d) > 0)
+    weight = np.where(valid, cos_x * cos_y / dist2 / np.maximum(dist2, min_distance2), 0.0)
+    pairs = np.flatnonzero(valid)
+    if len(pairs):
+        origin = tracer.to_local(P[pairs] + G[pairs] * eps)
+        direction = tracer.to_local(vpl_position[pairs]) - origin
+        distance = np.sqrt(dist2[pairs]).astype(np.float32)
+        tfar = segment_end(distance, (cos_y[pairs] / np.sqrt(dist2[pairs])).astype(np.float32),
+                           eps)
+        weight[pairs[tracer.occluded(origin, direction, tfar, threads=False, local=True)]] = 0
+    return weight.astype(np.float32)
 
 
 @dataclass

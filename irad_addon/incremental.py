@@ -35,6 +35,7 @@ CROWDED = 0.75               # sites closer than this share of the ideal spacing
 REBUILD_BELOW = 0.5          # fewer valid sites than this share of the target: rebuild
 QUADRATURE_DIRECTIONS = 8192
 HALTON_BLOCK = 4096          # bounce points drawn at once
+PATH_VERTICES = 1 << 16      # VPL ids: site serial * PATH_VERTICES + bounce
 _BOUNCE_DIMS = 3
 
 
@@ -50,11 +51,12 @@ def fibonacci_sphere(count):
 @dataclass
 class LightSites:
     """One light's sites: direction, first hit and the normal on its lit side (NaN
-    when the ray escaped) and the path's VPLs per unit power sent along the direction,
-    with their site index."""
+    when the ray escaped), serial number (unique over the job) and the path's VPLs per
+    unit power sent along the direction, with their site index."""
     direction: np.ndarray
     hit: np.ndarray
     hit_normal: np.ndarray
+    serial: np.ndarray
     unit_vpls: vpl.VPLs
     owner: np.ndarray
 
@@ -62,7 +64,12 @@ class LightSites:
         index = np.cumsum(mask) - 1
         own = mask[self.owner]
         return LightSites(self.direction[mask], self.hit[mask], self.hit_normal[mask],
-                          self.unit_vpls.subset(own), index[self.owner[own]])
+                          self.serial[mask], self.unit_vpls.subset(own),
+                          index[self.owner[own]])
+
+    def vpl_ids(self):
+        """A VPL's identity across frames: its site's serial and its bounce."""
+        return self.serial[self.owner] * PATH_VERTICES + self.unit_vpls.bounce
 
 
 def incremental_emitter(emitter):
@@ -95,7 +102,7 @@ class IncrementalVPLs:
                   if frame.emitters else [])
         targets = [int(c) for e, c in zip(frame.emitters, counts) if incremental_emitter(e)]
         self.rays = self.compared = 0
-        found, removed, added = [], 0, 0
+        found, ids, removed, added = [], [], 0, 0
         for k, (light, target) in enumerate(zip(lights, targets)):
             domain = self._domain(light, target)
             sites, gone = self._validate(frame, light, self.sites[k], target, domain)
@@ -105,14 +112,17 @@ class IncrementalVPLs:
             self.sites[k] = sites
             removed, added = removed + gone, added + new
             found.append(self._weighted_vpls(light, sites, domain, cell))
+            ids.append(sites.vpl_ids() if sites is not None else np.zeros(0, np.int64))
         if others:
             found.append(self._classic_vpls(frame, others, int(sum(
                 c for e, c in zip(frame.emitters, counts) if not incremental_emitter(e))),
                 settings))
+            ids.append(-1 - np.arange(found[-1].count))   # the same while they are kept
         vpls = vpl.VPLs.concatenate(found)
         return vpls, {'removed': removed, 'added': added, 'rays': self.rays,
                       'incremental_vpls': int(sum(v.count for v in found[:len(lights)])),
-                      'compared': self.compared}
+                      'compared': self.compared,
+                      'vpl_ids': np.concatenate(ids) if ids else np.zeros(0, np.int64)}
 
     def _classic_vpls(self, frame, others, particles, settings):
         """Classic VPLs of the other emitters, kept while they, the geometry and the
@@ -192,6 +202,7 @@ class IncrementalVPLs:
         return LightSites(np.concatenate([sites.direction, added.direction]),
                           np.concatenate([sites.hit, added.hit]),
                           np.concatenate([sites.hit_normal, added.hit_normal]),
+                          np.concatenate([sites.serial, added.serial]),
                           vpl.VPLs.concatenate([sites.unit_vpls, added.unit_vpls]),
                           np.concatenate([sites.owner, added.owner + have])), cell, len(chosen)
 
@@ -203,6 +214,7 @@ class IncrementalVPLs:
     def _trace_sites(self, frame, light, directions, settings):
         """New sites: one light path per direction, with unit power."""
         count = len(directions)
+        serial = self.paths + np.arange(count)   # the sites' Halton indices
         origin = np.broadcast_to(light.position, (count, 3))
         vpls, owner = vpl.follow_paths(frame, origin, directions, np.ones((count, 3)),
                                        self._bounce_points(count, settings), settings.max_bounces)
@@ -211,7 +223,7 @@ class IncrementalVPLs:
         is_first = vpls.bounce == 1
         first[owner[is_first]] = vpls.position[is_first]
         first_normal[owner[is_first]] = vpls.normal[is_first]
-        return LightSites(directions, first, first_normal, vpls, owner)
+        return LightSites(directions, first, first_normal, serial, vpls, owner)
 
     def _voronoi_cells(self, directions, domain):
         """Nearest site (index, cosine) of every domain direction."""

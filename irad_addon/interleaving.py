@@ -46,23 +46,39 @@ def _padded(image, pad, fill, channels):
     return np.pad(image, width, constant_values=fill)
 
 
-def discontinuity_filter(irradiance, depth, normal, hit, k):
+def discontinuity_filter(irradiance, depth, normal, hit, k, weights=None):
     """Average irradiance (..., H, W, 3) over k x k neighbours that continue the
     centre's surface: |depth - depth_c| < tol * depth_c and normal . normal_c >
-    NORMAL_COSINE. Leading axes (the anti-aliasing layers) are filtered separately."""
+    NORMAL_COSINE. Leading axes (the anti-aliasing layers) are filtered separately.
+    weights: discontinuity_weights of these depths, normals and hits, if already made."""
     if k <= 1:
         return irradiance
+    pad = WINDOW_TILES * k
+    h, w = depth.shape[-2:]
+    neighbours, count = weights or discontinuity_weights(depth, normal, hit, k)
+    # float32 planes with the channel axis first: every window is a cheap strided view.
+    planes = np.moveaxis(irradiance, -1, 0).astype(np.float32)
+    E = _padded(planes, pad, 0.0, 0)
+    total = np.zeros(planes.shape, np.float32)
+    for (dy, dx), same in zip(window_offsets(k), neighbours):
+        total += E[..., pad + dy:pad + dy + h, pad + dx:pad + dx + w] * same
+    filtered = np.where(count > 0, total / np.maximum(count, 1), planes)
+    return np.moveaxis(filtered, 0, -1).astype(np.float64)
+
+
+def discontinuity_weights(depth, normal, hit, k):
+    """Which neighbours of each window offset continue the centre's surface (bool
+    masks, one per window_offsets(k) entry), and how many do: the filter's weights,
+    which depend on the G-buffer only (a still camera keeps them)."""
     f32 = np.float32
     h, w = depth.shape[-2:]
     pad = WINDOW_TILES * k
-    # float32 planes with the channel axis first: every window is a cheap strided view.
     planes = lambda a: np.moveaxis(a, -1, 0).astype(f32)   # noqa: E731
-    E, N = _padded(planes(irradiance), pad, 0.0, 0), _padded(planes(normal), pad, 0.0, 0)
+    N = _padded(planes(normal), pad, 0.0, 0)
     Z, H = _padded(depth.astype(f32), pad, np.inf, 0), _padded(hit, pad, False, 0)
     centre_normal, centre_depth = planes(normal), depth.astype(f32)
     tolerance = (DEPTH_TOLERANCE * depth).astype(f32)
-    total = np.zeros((3,) + depth.shape, f32)
-    weight = np.zeros(depth.shape, f32)
+    neighbours, count = [], np.zeros(depth.shape, f32)
     for dy, dx in window_offsets(k):
         window = (Ellipsis, slice(pad + dy, pad + dy + h), slice(pad + dx, pad + dx + w))
         n = N[window]
@@ -72,20 +88,29 @@ def discontinuity_filter(irradiance, depth, normal, hit, k):
         same = H[window] & hit
         same &= np.abs(Z[window] - centre_depth) <= tolerance
         same &= cosine >= NORMAL_COSINE
-        same = same.astype(f32)
-        total += E[window] * same
-        weight += same
-    filtered = np.where(weight > 0, total / np.maximum(weight, 1), planes(irradiance))
-    return np.moveaxis(filtered, 0, -1).astype(np.float64)
+        neighbours.append(same)
+        count += same
+    return neighbours, count
 
 
-def filter_sample_layers(irradiance, gb, k):
+def _layers(gb):
+    """Per-sample arrays (S, ...) -> (samples, H, W, ...) anti-aliasing layers."""
+    return lambda a: a.reshape((gb.samples, gb.height, gb.width) + a.shape[1:])
+
+
+def filter_sample_layers(irradiance, gb, k, weights=None):
     """Run the discontinuity buffer on each anti-aliasing sample's image separately
-    (each layer holds every tile position once), per-sample irradiance in and out."""
+    (each layer holds every tile position once), per-sample irradiance in and out.
+    weights: layer_filter_weights(gb, k), if already made."""
     if k <= 1:
         return irradiance
-    h, w, s = gb.height, gb.width, gb.samples
-    layer = lambda a: a.reshape((s, h, w) + a.shape[1:])   # noqa: E731
+    layer = _layers(gb)
     out = discontinuity_filter(layer(irradiance), layer(gb.depth), layer(gb.normal),
-                               layer(gb.hit), k)
+                               layer(gb.hit), k, weights)
     return out.reshape(irradiance.shape)
+
+
+def layer_filter_weights(gb, k):
+    """filter_sample_layers' discontinuity_weights for G-buffer `gb`."""
+    layer = _layers(gb)
+    return discontinuity_weights(layer(gb.depth), layer(gb.normal), layer(gb.hit), k)

@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import (antialiasing, bias_compensation, direct_lightcuts, gather, geometry,
-               interleaving, mirrors, temporal, variants)
+               interleaving, mirrors, temporal, transfer_reuse, variants)
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -127,13 +127,16 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
               for name, c in PASS_CHANNELS.items()}
     bands = row_bands(cam.height, cam.width, band_samples(settings), settings.interleave)
     dmin = clamp_distance(frame, vpls, settings.clamp)
+    transfer = reusable_transfer(frame, settings, variant_state, variant_info, vpls)
+    if transfer is not None:
+        dmin = transfer[0].begin((frame.tracer.fingerprint, repr(cam), repr(settings)), dmin)
     # With lightcuts, area lights and emissive meshes join as many point lights.
     light_points = direct_lightcuts.light_points(frame) if settings.use_lightcuts else None
     for number, rows in enumerate(bands):
         def band_progress(fraction, message):
             report(0.05 + 0.95 * (number + fraction) / len(bands), message)
         band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, tally,
-                           light_points)
+                           light_points, transfer)
         for name, image in band.items():
             passes[name][rows[0]:rows[1]] = image
     result = RenderResult(passes, warnings=warnings)
@@ -148,9 +151,27 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     return result
 
 
-def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_points=None):
+def reusable_transfer(frame, settings, variant_state, variant_info, vpls):
+    """(TransferCache, VPL ids) when the VPLs' transfer to the camera may be kept for
+    the next frames (transfer_reuse.py): incremental IR's VPLs with their ids, gathered
+    without lightcuts, every interleaved group holding some, within the memory bound."""
+    ids = variant_info.get('vpl_ids')
+    if variant_state is None or ids is None or settings.use_lightcuts or len(ids) != vpls.count:
+        return None
+    subsets = interleaving.subset_count(settings.interleave, settings.aa_samples)
+    samples = frame.scene.camera.width * frame.scene.camera.height * settings.aa_samples
+    if not transfer_reuse.fits(samples, vpls.count, subsets):
+        return None
+    if len(np.unique(transfer_reuse.interleaved_group(ids, subsets))) < subsets:
+        return None   # a group without VPLs would leave its pixels without indirect light
+    return variant_state.transfer, ids
+
+
+def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_points=None,
+                transfer=None):
     """Passes for image rows (first, stop). The G-buffer reaches one tile further up
-    and down so the discontinuity buffer sees whole windows at the band's edges."""
+    and down so the discontinuity buffer sees whole windows at the band's edges.
+    transfer: (TransferCache, VPL ids) to keep the G-buffers and the VPLs' transfer."""
     cam = frame.scene.camera
     k = max(1, settings.interleave)
     halo = k if k > 1 else 0
@@ -160,10 +181,18 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
 
     t = time.perf_counter()
     report(0.0, "Tracing camera rays")
-    gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
-    coverage = (build_gbuffer(frame, cam, settings.coverage_samples, rng, padded,
-                              smooth_normals=False)
-                if settings.coverage_samples > settings.aa_samples else None)
+    kept = transfer[0].bands.get(rows) if transfer is not None else None
+    if kept is not None:   # the same camera, geometry and settings: the same G-buffers
+        gb, coverage = kept.gbuffers
+        rng.bit_generator.state = kept.rng_state
+    else:
+        gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
+        coverage = (build_gbuffer(frame, cam, settings.coverage_samples, rng, padded,
+                                  smooth_normals=False)
+                    if settings.coverage_samples > settings.aa_samples else None)
+        if transfer is not None:
+            kept = transfer[0].bands[rows] = transfer_reuse.BandTransfer(
+                (gb, coverage), rng.bit_generator.state)
     tally.add("gbuffer", t)
 
     t = time.perf_counter()
@@ -187,10 +216,17 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
     subsets = interleaving.subset_count(k, gb.samples)
     gather_stats = {}
-    E_indirect = gather.indirect_irradiance(
-        frame, gb, vpls, dmin, subset_of_sample, subsets, check,
-        lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"), lightcuts,
-        gather_stats)
+    if kept is not None:
+        report(0.2, f"Gathering {vpls.count} VPLs, new ones only")
+        E_indirect, gather_stats["shadow_rays_per_point"] = \
+            transfer_reuse.reused_indirect_irradiance(frame, gb, vpls, transfer[1], dmin,
+                                                      subset_of_sample, subsets, kept,
+                                                      transfer[0], check)
+    else:
+        E_indirect = gather.indirect_irradiance(
+            frame, gb, vpls, dmin, subset_of_sample, subsets, check,
+            lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"), lightcuts,
+            gather_stats)
     tally.count("shadow_rays_per_point", gather_stats.get("shadow_rays_per_point", 0.0))
     tally.add("indirect", t)
     if frame.mirror is not None:   # skipped entirely for scenes without mirrors
@@ -207,25 +243,33 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         E_indirect += bias_compensation.clamp_residual_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
         tally.add("bias_compensation", t)
-    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
+    if kept is not None and kept.filter_weights is None and k > 1:
+        kept.filter_weights = interleaving.layer_filter_weights(gb, k)
+    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k,
+                                                   kept.filter_weights if kept else None)
     if check():
         raise Cancelled()
     if coverage is not None:
         t = time.perf_counter()
-        E_direct, E_indirect = antialiasing.irradiance_at_coverage(coverage, gb, E_direct,
-                                                                   E_indirect)
+        if kept is not None and kept.coverage is None:
+            kept.coverage = antialiasing.coverage_map(coverage, gb)
+        E_direct, E_indirect = antialiasing.irradiance_at_coverage(
+            coverage, gb, E_direct, E_indirect, coverage=kept.coverage if kept else None)
         # The Normal pass keeps the shading samples' interpolated normals.
         coverage.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[coverage.pixel]
         gb = coverage
         tally.add("coverage", t)
+    if kept is not None and kept.still is None:
+        kept.still = still_passes(gb, settings.film_transparent)
     band = compose_passes(gb, E_direct, E_indirect, frame.scene.world_radiance,
-                          settings.film_transparent)
+                          settings.film_transparent, kept.still if kept else None)
     crop = slice(rows[0] - padded[0], rows[1] - padded[0])
     return {name: image[crop] for name, image in band.items()}
 
 
-def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent):
-    """Radiance = emission + albedo/pi * (E_direct + E_indirect), averaged per pixel."""
+def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent, still=None):
+    """Radiance = emission + albedo/pi * (E_direct + E_indirect), averaged per pixel.
+    still: the G-buffer's still_passes, if already made."""
     brdf = gb.albedo / np.pi
     visible = gb.hit & ~gb.holdout
     direct = np.where(visible[:, None], gb.emission + brdf * E_direct, 0.0)
@@ -236,17 +280,22 @@ def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent):
         direct *= gb.throughput
         indirect *= gb.throughput
         direct += gb.mirrored_light
-    alpha = (visible | background).astype(np.float64)
-    combined = np.concatenate([direct + indirect, alpha[:, None]], -1)
-    depth = gb.depth[:, None]
-    passes = {
-        "Combined": gb.pixel_mean(combined),
-        "IRAD Direct": gb.pixel_mean(direct),
-        "IRAD Indirect": gb.pixel_mean(indirect),
-        "Depth": gb.pixel_mean(depth),
-        "Normal": gb.pixel_mean(gb.normal),
-        "Albedo": gb.pixel_mean(np.where(gb.hit[:, None], gb.albedo, 0.0)),
-    }
+    still = still if still is not None else still_passes(gb, film_transparent)
+    direct, indirect = gb.pixel_mean(direct), gb.pixel_mean(indirect)
+    passes = {"Combined": np.concatenate([direct + indirect, still["Alpha"]], -1),
+              "IRAD Direct": direct, "IRAD Indirect": indirect}
+    passes = {name: sanitize(image).astype(np.float32) for name, image in passes.items()}
+    return {**passes, **{name: still[name] for name in ("Depth", "Normal", "Albedo")}}
+
+
+def still_passes(gb, film_transparent):
+    """The passes that depend on the G-buffer only (a still camera keeps them): alpha,
+    depth, normal and albedo, averaged per pixel."""
+    background = ~gb.hit & (not film_transparent)
+    alpha = ((gb.hit & ~gb.holdout) | background).astype(np.float64)[:, None]
+    passes = {"Alpha": gb.pixel_mean(alpha), "Depth": gb.pixel_mean(gb.depth[:, None]),
+              "Normal": gb.pixel_mean(gb.normal),
+              "Albedo": gb.pixel_mean(np.where(gb.hit[:, None], gb.albedo, 0.0))}
     return {name: sanitize(image).astype(np.float32) for name, image in passes.items()}
 
 

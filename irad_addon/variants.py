@@ -9,6 +9,7 @@ import numpy as np
 from . import bidirectional, metropolis, vpl
 from .gbuffer import build_gbuffer
 from .incremental import IncrementalVPLs
+from .transfer_reuse import TransferCache
 from .variant_choice import choose_variant
 
 VARIANTS = ('CLASSIC', 'BIDIRECTIONAL', 'METROPOLIS', 'INCREMENTAL', 'AUTO')
@@ -20,6 +21,7 @@ VARIANT_NAMES = {'CLASSIC': "Classic", 'BIDIRECTIONAL': "Bidirectional",
 class VariantState:
     """What persists between the frames of one render job (animation or viewport)."""
     incremental: IncrementalVPLs = field(default_factory=IncrementalVPLs)
+    transfer: TransferCache = field(default_factory=TransferCache)   # incremental's gather
     geometry_key: bytes = b''
     lights_key: bytes = b''
     frames: int = 0
