@@ -5,6 +5,7 @@ from concurrent.futures import as_completed
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from . import light_tree, rays, sampling
 from . import lightcuts as lightcuts_module
@@ -127,24 +128,54 @@ def segment_end(distance, cos_vpl, eps):
     return f32(1 - 1e-5) - f32(2 * eps) / (distance * np.maximum(cos_vpl, f32(1e-2)))
 
 
-def pair_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps):
-    """float32 (n,): vpl_transfer's term for n (point, VPL) pairs given row by row,
-    for sparse pair lists (transfer_reuse.py's new VPLs, a few per point)."""
-    d = vpl_position - P
-    dist2 = np.maximum(np.einsum('ij,ij->i', d, d), 1e-30)
-    cos_x = np.einsum('ij,ij->i', N, d)
-    cos_y = -np.einsum('ij,ij->i', vpl_normal, d)
-    valid = (cos_x > 0) & (cos_y > 0) & (np.einsum('ij,ij->i', G, d) > 0)
-    weight = np.where(valid, cos_x * cos_y / dist2 / np.maximum(dist2, min_distance2), 0.0)
-    pairs = np.flatnonzero(valid)
-    if len(pairs):
-        origin = tracer.to_local(P[pairs] + G[pairs] * eps)
-        direction = tracer.to_local(vpl_position[pairs]) - origin
-        distance = np.sqrt(dist2[pairs]).astype(np.float32)
-        tfar = segment_end(distance, (cos_y[pairs] / np.sqrt(dist2[pairs])).astype(np.float32),
-                           eps)
-        weight[pairs[tracer.occluded(origin, direction, tfar, threads=False, local=True)]] = 0
-    return weight.astype(np.float32)
+def pair_transfer(points, lights, gb, vpls, min_distance2, tracer, eps):
+    """float32 (n,): vpl_transfer's term for n (G-buffer sample, VPL) index pairs, for
+    sparse pair lists (transfer_reuse.py's new VPLs, a few per point). One compiled
+    pass makes the weights and the shadow segments of the pairs that need one."""
+    weight = np.empty(len(points), np.float32)
+    origin = np.empty((len(points), 3), np.float32)
+    direction = np.empty((len(points), 3), np.float32)
+    distance = np.empty(len(points), np.float32)
+    cos_vpl = np.empty(len(points), np.float32)
+    pairs = np.empty(len(points), np.int64)
+    count = _pair_terms(points, lights, gb.position, gb.normal, gb.geo_normal, vpls.position,
+                        vpls.normal, min_distance2, eps, tracer.center, weight, origin,
+                        direction, distance, cos_vpl, pairs)
+    if count:
+        tfar = segment_end(distance[:count], cos_vpl[:count], eps)
+        blocked = tracer.occluded(origin[:count], direction[:count], tfar, threads=False,
+                                  local=True)
+        weight[pairs[:count][blocked]] = 0
+    return weight
+
+
+@njit(cache=True)
+def _pair_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, weight, origin,
+                direction, distance, cos_vpl, pairs):
+    """vpl_transfer's term per pair before visibility, and the shadow segments (in the
+    tracer's frame, relative to `centre`) of the pairs with a positive term, packed
+    first; returns their number."""
+    count = 0
+    for i in range(len(points)):
+        p, v = points[i], lights[i]
+        dx, dy, dz = Y[v, 0] - P[p, 0], Y[v, 1] - P[p, 1], Y[v, 2] - P[p, 2]
+        dist2 = max(dx * dx + dy * dy + dz * dz, 1e-30)
+        cos_x = N[p, 0] * dx + N[p, 1] * dy + N[p, 2] * dz
+        cos_y = -(NY[v, 0] * dx + NY[v, 1] * dy + NY[v, 2] * dz)
+        above = G[p, 0] * dx + G[p, 1] * dy + G[p, 2] * dz
+        if cos_x <= 0 or cos_y <= 0 or above <= 0:
+            weight[i] = 0
+            continue
+        weight[i] = cos_x * cos_y / dist2 / max(dist2, min_distance2)
+        for c in range(3):
+            start = P[p, c] + G[p, c] * eps - centre[c]
+            origin[count, c] = start
+            direction[count, c] = (Y[v, c] - centre[c]) - np.float32(start)
+        distance[count] = np.sqrt(dist2)
+        cos_vpl[count] = cos_y / np.sqrt(dist2)
+        pairs[count] = i
+        count += 1
+    return count
 
 
 @dataclass

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import sampling, vpl
-from .temporal import emitters_fingerprint
+from .temporal import emitters_fingerprint, surfaces_key
 from .direction_search import (DirectionGrid, chord, largest_empty_circles, nearest_point,
                                nearest_sites, site_spacing)
 from .lights import PointEmitter, SpotEmitter
@@ -81,7 +81,7 @@ class IncrementalVPLs:
 
     def __init__(self):
         self.sites = None
-        self.geometry_key = None
+        self.surfaces = None          # temporal.surfaces_key of the frame the sites are in
         self.rays = 0                 # rays traced by the last update (for cost checks)
         self.compared = 0             # direction pairs compared by the last update
         self.paths = 0                # sites created so far: their Halton index
@@ -93,11 +93,11 @@ class IncrementalVPLs:
     def update(self, frame, settings):
         lights = [e for e in frame.emitters if incremental_emitter(e)]
         others = [e for e in frame.emitters if not incremental_emitter(e)]
-        if (self.sites is None or self.geometry_key != frame.tracer.fingerprint
-                or len(self.sites) != len(lights)):
+        surfaces = surfaces_key(frame)   # the paths' bounces depend on the materials too
+        if self.sites is None or self.surfaces != surfaces or len(self.sites) != len(lights):
             self.sites = [None] * len(lights)
             self.paths = 0
-            self.geometry_key = frame.tracer.fingerprint
+            self.surfaces = surfaces
         counts = (vpl.particles_per_emitter(frame.emitters, settings.particles)
                   if frame.emitters else [])
         targets = [int(c) for e, c in zip(frame.emitters, counts) if incremental_emitter(e)]
@@ -127,7 +127,7 @@ class IncrementalVPLs:
     def _classic_vpls(self, frame, others, particles, settings):
         """Classic VPLs of the other emitters, kept while they, the geometry and the
         settings stay (then tracing them again would give the very same VPLs)."""
-        key = (frame.tracer.fingerprint, emitters_fingerprint(others), particles,
+        key = (self.surfaces, emitters_fingerprint(others), particles,
                settings.seed, settings.max_bounces, settings.sequence)
         if key != self._classic[0]:
             vpls = vpl.trace_vpls(replace(frame, emitters=others), particles,

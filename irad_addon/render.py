@@ -129,7 +129,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     dmin = clamp_distance(frame, vpls, settings.clamp)
     transfer = reusable_transfer(frame, settings, variant_state, variant_info, vpls)
     if transfer is not None:
-        dmin = transfer[0].begin((frame.tracer.fingerprint, repr(cam), repr(settings)), dmin)
+        dmin = transfer[0].begin(temporal.still_camera_key(frame, settings), dmin)
     # With lightcuts, area lights and emissive meshes join as many point lights.
     light_points = direct_lightcuts.light_points(frame) if settings.use_lightcuts else None
     for number, rows in enumerate(bands):
@@ -270,17 +270,16 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
 def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent, still=None):
     """Radiance = emission + albedo/pi * (E_direct + E_indirect), averaged per pixel.
     still: the G-buffer's still_passes, if already made."""
-    brdf = gb.albedo / np.pi
-    visible = gb.hit & ~gb.holdout
-    direct = np.where(visible[:, None], gb.emission + brdf * E_direct, 0.0)
-    indirect = np.where(visible[:, None], brdf * E_indirect, 0.0)
-    background = ~gb.hit & (not film_transparent)
-    direct[background] = np.maximum(np.nan_to_num(np.asarray(world_radiance, np.float64)), 0.0)
+    still = still if still is not None else still_passes(gb, film_transparent)
+    direct = still["brdf"] * E_direct
+    direct += still["emission"]
+    direct[still["background"]] = np.maximum(
+        np.nan_to_num(np.asarray(world_radiance, np.float64)), 0.0)
+    indirect = still["brdf"] * E_indirect
     if gb.throughput is not None:   # seen in mirrors, with the lights they reflect
         direct *= gb.throughput
         indirect *= gb.throughput
         direct += gb.mirrored_light
-    still = still if still is not None else still_passes(gb, film_transparent)
     direct, indirect = gb.pixel_mean(direct), gb.pixel_mean(indirect)
     passes = {"Combined": np.concatenate([direct + indirect, still["Alpha"]], -1),
               "IRAD Direct": direct, "IRAD Indirect": indirect}
@@ -289,14 +288,18 @@ def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent, s
 
 
 def still_passes(gb, film_transparent):
-    """The passes that depend on the G-buffer only (a still camera keeps them): alpha,
-    depth, normal and albedo, averaged per pixel."""
+    """What compose_passes takes from the G-buffer alone (a still camera keeps it): the
+    alpha, depth, normal and albedo passes, and per sample the BRDF albedo / pi and the
+    emission where a surface is seen, and where the background is."""
+    visible = (gb.hit & ~gb.holdout)[:, None]
     background = ~gb.hit & (not film_transparent)
-    alpha = ((gb.hit & ~gb.holdout) | background).astype(np.float64)[:, None]
+    alpha = (visible[:, 0] | background).astype(np.float64)[:, None]
     passes = {"Alpha": gb.pixel_mean(alpha), "Depth": gb.pixel_mean(gb.depth[:, None]),
               "Normal": gb.pixel_mean(gb.normal),
               "Albedo": gb.pixel_mean(np.where(gb.hit[:, None], gb.albedo, 0.0))}
-    return {name: sanitize(image).astype(np.float32) for name, image in passes.items()}
+    return {**{name: sanitize(image).astype(np.float32) for name, image in passes.items()},
+            "brdf": np.where(visible, gb.albedo / np.pi, 0.0),
+            "emission": np.where(visible, gb.emission, 0.0), "background": background}
 
 
 def sanitize(image):

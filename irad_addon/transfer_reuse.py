@@ -150,10 +150,8 @@ def _trace(frame, gb, vpls, dense, point, light, min_distance, cancel):
                                       frame.tracer, eps)
 
     def pairs(a, b):
-        p, v = point[a:b], light[a:b]
-        return None, gather.pair_transfer(gb.position[p], gb.normal[p], gb.geo_normal[p],
-                                          vpls.position[v], vpls.normal[v], d2,
-                                          frame.tracer, eps)
+        return None, gather.pair_transfer(point[a:b], light[a:b], gb, vpls, d2, frame.tracer,
+                                          eps)
 
     tasks = []
     for k, idx, mine in dense:

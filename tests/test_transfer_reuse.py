@@ -17,14 +17,14 @@ def core(addon):
     return addon.irad_addon
 
 
-def box_scene(core, light_position, camera_matrix=None):
+def box_scene(core, light_position, camera_matrix=None, albedo=0.7):
     """A closed box with a block standing in it (shadows), a point light, and a camera
     at the centre looking at a wall past the block."""
     sd = core.scene_data
     block = synthetic.closed_box(1, 0.2) + np.array([0.2, 0.0, -0.6], np.float32)
     tris = np.concatenate([synthetic.closed_box(3), block])
     light = sd.PointLight(np.array(light_position, np.float64), np.ones(3), 50.0, 0.0)
-    return synthetic.scene(sd, tris, [0.7] * 3, lights=[light],
+    return synthetic.scene(sd, tris, [albedo] * 3, lights=[light],
                            camera=synthetic.camera(sd, camera_matrix, size=16))
 
 
@@ -110,3 +110,20 @@ def test_nothing_is_kept_when_the_camera_moves_or_lightcuts_gather(core, change)
     assert second.stats["shadow_rays_per_point"] < 0.25 * third.stats["shadow_rays_per_point"]
     image = third.passes["IRAD Indirect"]
     assert np.isfinite(image).all() and image.max() > 0
+
+
+def test_a_material_change_starts_afresh(core):
+    """Kept G-buffers, transfer and VPL paths hold the old albedo: a frame whose surfaces
+    reflect differently renders exactly as a first frame would."""
+    cache = core.rays.RayTracerCache()
+    state = core.variants.VariantState()
+    s = settings(core, 'INCREMENTAL')
+    for i in range(3):
+        core.render.render_frame(box_scene(core, light_at(i)), s, tracer_cache=cache,
+                                 variant_state=state)
+    changed = box_scene(core, light_at(3), albedo=0.35)
+    kept = core.render.render_frame(changed, s, tracer_cache=cache, variant_state=state)
+    fresh = core.render.render_frame(changed, s, tracer_cache=cache,
+                                     variant_state=core.variants.VariantState())
+    for name in ("Combined", "Albedo"):
+        assert np.allclose(kept.passes[name], fresh.passes[name], rtol=1e-5, atol=1e-7), name
