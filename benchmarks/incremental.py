@@ -7,6 +7,11 @@ across frames, classic IR with the scene's fixed seed (the default) and with a n
 per frame (Animated Seed). Frame 0 (incremental builds everything) is left out.
 Reported per scene and particle count: median wall and CPU time per frame and the rays
 traced per frame, and their ratios classic / incremental.
+
+Whole frames: the same animations rendered end to end (render.render_frame, the camera
+still), where incremental IR also keeps its VPLs' transfer to the camera's samples
+(transfer_reuse.py) and traces shadow rays only for its new VPLs; every ray of a frame
+is counted (camera, lights, placement, gather, clamp compensation).
 """
 import math
 import time
@@ -20,6 +25,8 @@ from benchmarks import scenes
 FRAMES = 30
 PARTICLES = (1024, 2048, 4096)
 QUICK_PARTICLES = (1024,)
+RENDER_PARTICLES = (2048, 8192)   # whole frames (the default is 2048)
+QUICK_RENDER_PARTICLES = (2048,)
 KINDS = (("incremental", 'INCREMENTAL', None), ("classic", 'CLASSIC', 0),
          ("classic, animated seed", 'CLASSIC', "frame"))
 
@@ -77,9 +84,34 @@ def measure(core, data, radius, height, particles):
                for label, series in out.items()}}
 
 
+def measure_frames(core, data, radius, height, particles):
+    """Whole frames: per-frame wall seconds and rays of each kind, and the mean of each
+    kind's indirect pass over the frames relative to classic's (both unbiased)."""
+    out = {}
+    for label, variant, seed in KINDS:
+        tracers, state = core.rays.CountingTracerCache(), core.variants.VariantState()
+        wall, frame_rays, level = [], [], []
+        for i in range(FRAMES):
+            settings = core.render.RenderSettings(
+                particles=particles, variant=variant, seed=i if seed == "frame" else 0)
+            start = time.perf_counter()
+            result = core.render.render_frame(
+                replace(data, lights=[orbit(data.lights[0], radius, height, i)]), settings,
+                tracer_cache=tracers, variant_state=state)
+            wall.append(time.perf_counter() - start)
+            frame_rays.append(tracers.tracer.rays)
+            level.append(float(result.passes["IRAD Indirect"].mean()))
+        out[label] = {"wall": float(np.median(wall[1:])), "rays": float(np.median(frame_rays[1:])),
+                      "first": wall[0], "indirect": float(np.mean(level))}
+    classic = out["classic"]["indirect"]
+    for label in out:
+        out[label]["indirect"] /= classic
+    return out
+
+
 def run(addon, quick=False):
     core = addon.irad_addon
-    rows = []
+    rows, frame_rows = [], []
     for title, build, radius, height in SCENES[:1] if quick else SCENES:
         bpy.ops.wm.read_homefile(use_empty=True)
         build()
@@ -88,4 +120,12 @@ def run(addon, quick=False):
             print(f"  incremental: {title}, {particles} particles", flush=True)
             result = measure(core, data, radius, height, particles)
             rows.append({"scene": title, "particles": particles, **result})
-    return {"frames": FRAMES, "rows": rows}
+        if title.startswith("high-poly"):
+            continue   # whole frames: the two interiors (the 1M-triangle scene is slow)
+        cam = data.camera
+        for particles in QUICK_RENDER_PARTICLES if quick else RENDER_PARTICLES:
+            print(f"  incremental, whole frames: {title}, {particles} particles", flush=True)
+            frame_rows.append({"scene": title, "particles": particles,
+                               "resolution": f"{cam.width}x{cam.height}",
+                               **measure_frames(core, data, radius, height, particles)})
+    return {"frames": FRAMES, "rows": rows, "frame_rows": frame_rows}

@@ -1,6 +1,8 @@
 """One frame's scene, prepared for tracing: clean triangles, per-triangle shading
 data, the ray tracer (reused while geometry is unchanged) and the emitters."""
+import hashlib
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -39,6 +41,18 @@ class Frame:
     @property
     def extent(self):
         return self.tracer.extent
+
+    @cached_property
+    def surfaces_key(self):
+        """A digest of the surfaces: the triangles (the tracer's fingerprint), their
+        shading normals, materials and holdout flags: what the VPL paths and the
+        G-buffers depend on in the scene. SHA-1 over the arrays' memory, no copies."""
+        h = hashlib.sha1(self.tracer.fingerprint)
+        mats = self.scene.materials
+        for array in (self.corner_normals, self.scene.mesh.material_index, self.holdout,
+                      mats.albedo, mats.emission, mats.mirror):
+            h.update(b'-' if array is None else memoryview(np.ascontiguousarray(array)).cast('B'))
+        return h.digest()
 
     def offset(self):
         return self.tracer.offset_scale()

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import sampling, vpl
-from .temporal import emitters_fingerprint, surfaces_key
+from .temporal import emitters_fingerprint
 from .direction_search import (DirectionGrid, chord, largest_empty_circles, nearest_point,
                                nearest_sites, site_spacing)
 from .lights import PointEmitter, SpotEmitter
@@ -81,7 +81,7 @@ class IncrementalVPLs:
 
     def __init__(self):
         self.sites = None
-        self.surfaces = None          # temporal.surfaces_key of the frame the sites are in
+        self.surfaces = None          # Frame.surfaces_key of the frame the sites are in
         self.rays = 0                 # rays traced by the last update (for cost checks)
         self.compared = 0             # direction pairs compared by the last update
         self.paths = 0                # sites created so far: their Halton index
@@ -93,7 +93,7 @@ class IncrementalVPLs:
     def update(self, frame, settings):
         lights = [e for e in frame.emitters if incremental_emitter(e)]
         others = [e for e in frame.emitters if not incremental_emitter(e)]
-        surfaces = surfaces_key(frame)   # the paths' bounces depend on the materials too
+        surfaces = frame.surfaces_key   # the paths' bounces depend on the materials too
         if self.sites is None or self.surfaces != surfaces or len(self.sites) != len(lights):
             self.sites = [None] * len(lights)
             self.paths = 0

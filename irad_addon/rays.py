@@ -52,8 +52,9 @@ def split_ranges(count, pieces, minimum=_TASK_RAYS):
 
 
 def triangle_fingerprint(triangles):
-    """A cheap key for 'did the geometry change': hash of the vertex bytes."""
-    return hashlib.blake2b(np.ascontiguousarray(triangles).tobytes(), digest_size=16).digest()
+    """A cheap key for 'did the geometry change': SHA-1 of the vertex bytes, read in
+    place (a copy of a million triangles would cost more than the hash)."""
+    return hashlib.sha1(memoryview(np.ascontiguousarray(triangles)).cast('B')).digest()
 
 
 @dataclass
@@ -180,3 +181,16 @@ class RayTracerCache:
             self._tracer = RayTracer(triangles)
             self.builds += 1
         return self._tracer
+
+
+class CountingTracerCache(RayTracerCache):
+    """A RayTracerCache whose frames count their rays: `tracer.rays` is the last
+    frame's (a CountingTracer per frame, over the one kept RayTracer)."""
+
+    def __init__(self):
+        super().__init__()
+        self.tracer = None
+
+    def get(self, triangles):
+        self.tracer = CountingTracer(super().get(triangles))
+        return self.tracer

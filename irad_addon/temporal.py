@@ -29,19 +29,10 @@ def light_setup_key(scene, settings, geometry_key):
     return h.digest()
 
 
-def surfaces_key(frame):
-    """A digest of the surfaces: triangles (the tracer's fingerprint) and what each
-    reflects and emits. What a frame's VPL paths and G-buffers depend on in the scene."""
-    h = hashlib.blake2b(frame.tracer.fingerprint, digest_size=16)
-    for array in (frame.albedo, frame.emission, frame.mirror):
-        h.update(b'-' if array is None else np.ascontiguousarray(array).tobytes())
-    return h.digest()
-
-
 def still_camera_key(frame, settings):
     """A digest of what the G-buffers and the VPLs' transfer to them depend on: the
     surfaces, the camera and the settings (transfer_reuse.py keeps them while it stays)."""
-    h = hashlib.blake2b(surfaces_key(frame), digest_size=16)
+    h = hashlib.blake2b(frame.surfaces_key, digest_size=16)
     h.update(repr(sorted(vars(frame.scene.camera).items(), key=str)).encode())
     h.update(repr(settings).encode())
     return h.digest()

@@ -32,17 +32,6 @@ def light_at(i):
     return (0.4 * np.cos(0.05 * i), 0.4 * np.sin(0.05 * i), 0.6)
 
 
-class CountingTracers:
-    """A tracer cache whose tracers count every ray of a frame (`rays`)."""
-
-    def __init__(self, core):
-        self.core, self.cache, self.tracer = core, core.rays.RayTracerCache(), None
-
-    def get(self, triangles):
-        self.tracer = self.core.rays.CountingTracer(self.cache.get(triangles))
-        return self.tracer
-
-
 def settings(core, variant, seed=0):
     return core.render.RenderSettings(particles=512, max_bounces=8, variant=variant,
                                       seed=seed, aa_samples=2, coverage_samples=4,
@@ -75,7 +64,7 @@ def test_frames_trace_3x_fewer_rays_than_rebuilding_every_vpl(core):
     the frame counted (camera, light, VPL placement, gather, clamp compensation)."""
     counts, images = {}, {}
     for kind in ('INCREMENTAL', 'CLASSIC'):
-        tracers, state = CountingTracers(core), core.variants.VariantState()
+        tracers, state = core.rays.CountingTracerCache(), core.variants.VariantState()
         counts[kind], images[kind] = [], []
         for i in range(30):
             result = core.render.render_frame(
