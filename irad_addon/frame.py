@@ -7,7 +7,7 @@ from functools import cached_property
 import numpy as np
 
 from . import geometry, lights
-from .rays import RayTracerCache
+from .rays import RayTracerCache, array_bytes
 from .scene_data import SceneData
 
 
@@ -46,12 +46,12 @@ class Frame:
     def surfaces_key(self):
         """A digest of the surfaces: the triangles (the tracer's fingerprint), their
         shading normals, materials and holdout flags: what the VPL paths and the
-        G-buffers depend on in the scene. SHA-1 over the arrays' memory, no copies."""
+        G-buffers depend on in the scene."""
         h = hashlib.sha1(self.tracer.fingerprint)
         mats = self.scene.materials
         for array in (self.corner_normals, self.scene.mesh.material_index, self.holdout,
                       mats.albedo, mats.emission, mats.mirror):
-            h.update(b'-' if array is None else memoryview(np.ascontiguousarray(array)).cast('B'))
+            h.update(b'-' if array is None else array_bytes(array))
         return h.digest()
 
     def offset(self):

@@ -52,9 +52,14 @@ def split_ranges(count, pieces, minimum=_TASK_RAYS):
 
 
 def triangle_fingerprint(triangles):
-    """A cheap key for 'did the geometry change': SHA-1 of the vertex bytes, read in
-    place (a copy of a million triangles would cost more than the hash)."""
-    return hashlib.sha1(memoryview(np.ascontiguousarray(triangles)).cast('B')).digest()
+    """A cheap key for 'did the geometry change': SHA-1 of the vertex bytes."""
+    return hashlib.sha1(array_bytes(triangles)).digest()
+
+
+def array_bytes(array):
+    """An array's bytes for hashing, read in place (a copy of a million triangles
+    would cost more than the hash)."""
+    return np.ascontiguousarray(array).reshape(-1).view(np.uint8)
 
 
 @dataclass
