@@ -77,46 +77,26 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
 def vpl_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps,
                  visible=None):
     """float32 (points, VPLs): cos_x cos_y / max(d^2, dmin^2) V per pair, what each
-    VPL's flux / pi becomes at each point (the flux-free part of the gather).
+    VPL's flux / pi becomes at each point (the flux-free part of the gather). One
+    compiled pass (numba, without the GIL) makes every pair's term and the shadow
+    segments of the pairs with a positive one; Embree then tests those segments.
+    `visible(origins, directions, tfar)` (world frame) replaces the plain test."""
+    n, m = len(P), len(vpl_position)
+    weight, segments = np.empty(n * m, np.float32), _segments(n * m)
+    count = _grid_terms(*_contiguous(P, N, G, vpl_position, vpl_normal), min_distance2, eps,
+                        tracer.center, weight, *segments)
+    _shadow_test(weight, segments, count, tracer, eps, visible)
+    return weight.reshape(n, m)
 
-    Every pairwise dot product is one small matrix product (n.(y - x) = n.y - n.x),
-    so numpy makes a handful of passes over the (points x VPLs) arrays; coordinates
-    are taken relative to the chunk's centre to keep float32 exact enough."""
-    f32 = np.float32
-    centre = P.mean(0)
-    X, Y = (P - centre).astype(f32), (vpl_position - centre).astype(f32)
-    Nf, Gf, Vn = N.astype(f32), G.astype(f32), vpl_normal.astype(f32)
-    # n_x . d, -n_y . d and g_x . d, with d = y - x, as (points, VPLs) arrays.
-    cos_x = Nf @ Y.T - np.einsum('ij,ij->i', Nf, X)[:, None]
-    cos_y = X @ Vn.T - np.einsum('ij,ij->i', Vn, Y)[None, :]
-    above = Gf @ Y.T - np.einsum('ij,ij->i', Gf, X)[:, None]
-    dist2 = np.einsum('ij,ij->i', X, X)[:, None] + np.einsum('ij,ij->i', Y, Y)[None, :]
-    dist2 -= 2 * (X @ Y.T)
-    np.maximum(dist2, f32(1e-30), out=dist2)
-    valid = (cos_x > 0) & (cos_y > 0) & (above > 0)
-    # cos_x cos_y / d^2 with the un-normalised dots, then the clamped 1 / d^2.
-    weight = cos_x * cos_y
-    weight /= dist2
-    weight /= np.maximum(dist2, f32(min_distance2))
-    weight[~valid] = 0
-    pairs = np.flatnonzero(valid)
-    if len(pairs):
-        # Pairs are sorted by point: repeat each point's row instead of gathering it.
-        per_point = valid.sum(1)
-        light = pairs % Y.shape[0]
-        # Ray ends in the tracer's float32 frame (exact far from the world origin).
-        origin = np.repeat(tracer.to_local(P + G * eps), per_point, axis=0)
-        # Unnormalised directions: the segment is t in [0, 1), shortened at the VPL's
-        # end by the offset (more at grazing angles) so its own surface does not block it.
-        direction = np.take(tracer.to_local(vpl_position), light, axis=0)
-        direction -= origin
-        d = np.sqrt(dist2.ravel()[pairs])
-        tfar = segment_end(d, cos_y.ravel()[pairs] / d, eps)
-        if visible is None:
-            blocked = tracer.occluded(origin, direction, tfar, threads=False, local=True)
-        else:
-            blocked = ~visible(origin + tracer.center, direction, tfar)   # world frame
-        weight.ravel()[pairs[blocked]] = 0
+
+def sparse_transfer(points, lights, gb, vpls, min_distance2, tracer, eps):
+    """float32 (n,): vpl_transfer's term for n (G-buffer sample, VPL) index pairs, for
+    sparse pair lists (transfer_reuse.py's new VPLs, a few per point)."""
+    weight, segments = np.empty(len(points), np.float32), _segments(len(points))
+    count = _listed_terms(points, lights, *_contiguous(gb.position, gb.normal, gb.geo_normal,
+                                                       vpls.position, vpls.normal),
+                          min_distance2, eps, tracer.center, weight, *segments)
+    _shadow_test(weight, segments, count, tracer, eps)
     return weight
 
 
@@ -128,54 +108,78 @@ def segment_end(distance, cos_vpl, eps):
     return f32(1 - 1e-5) - f32(2 * eps) / (distance * np.maximum(cos_vpl, f32(1e-2)))
 
 
-def pair_transfer(points, lights, gb, vpls, min_distance2, tracer, eps):
-    """float32 (n,): vpl_transfer's term for n (G-buffer sample, VPL) index pairs, for
-    sparse pair lists (transfer_reuse.py's new VPLs, a few per point). One compiled
-    pass makes the weights and the shadow segments of the pairs that need one."""
-    weight = np.empty(len(points), np.float32)
-    origin = np.empty((len(points), 3), np.float32)
-    direction = np.empty((len(points), 3), np.float32)
-    distance = np.empty(len(points), np.float32)
-    cos_vpl = np.empty(len(points), np.float32)
-    pairs = np.empty(len(points), np.int64)
-    count = _pair_terms(points, lights, gb.position, gb.normal, gb.geo_normal, vpls.position,
-                        vpls.normal, min_distance2, eps, tracer.center, weight, origin,
-                        direction, distance, cos_vpl, pairs)
-    if count:
-        tfar = segment_end(distance[:count], cos_vpl[:count], eps)
-        blocked = tracer.occluded(origin[:count], direction[:count], tfar, threads=False,
-                                  local=True)
-        weight[pairs[:count][blocked]] = 0
-    return weight
+def _contiguous(*arrays):
+    return [np.ascontiguousarray(a, np.float64) for a in arrays]
 
 
-@njit(cache=True)
-def _pair_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, weight, origin,
-                direction, distance, cos_vpl, pairs):
-    """vpl_transfer's term per pair before visibility, and the shadow segments (in the
-    tracer's frame, relative to `centre`) of the pairs with a positive term, packed
-    first; returns their number."""
+def _segments(count):
+    """Room for `count` shadow segments: origin and unnormalised direction (float32,
+    the tracer's frame), length, cosine at the VPL and the pair they belong to."""
+    return (np.empty((count, 3), np.float32), np.empty((count, 3), np.float32),
+            np.empty(count, np.float32), np.empty(count, np.float32),
+            np.empty(count, np.int64))
+
+
+def _shadow_test(weight, segments, count, tracer, eps, visible=None):
+    """Zero the weights of the first `count` segments' pairs that something blocks."""
+    if count == 0:
+        return
+    origin, direction, distance, cos_vpl, pair = (a[:count] for a in segments)
+    tfar = segment_end(distance, cos_vpl, eps)
+    if visible is None:
+        blocked = tracer.occluded(origin, direction, tfar, threads=False, local=True)
+    else:
+        blocked = ~visible(origin + tracer.center, direction, tfar)   # world frame
+    weight[pair[blocked]] = 0
+
+
+@njit(cache=True, nogil=True)
+def _grid_terms(P, N, G, Y, NY, min_distance2, eps, centre, weight, origin, direction,
+                distance, cos_vpl, pair):
+    """_pair_term for every (point, VPL): pair p * len(Y) + v."""
+    count = 0
+    for p in range(len(P)):
+        for v in range(len(Y)):
+            count = _pair_term(P, N, G, Y, NY, p, v, p * len(Y) + v, min_distance2, eps,
+                               centre, weight, origin, direction, distance, cos_vpl, pair,
+                               count)
+    return count
+
+
+@njit(cache=True, nogil=True)
+def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, weight, origin,
+                  direction, distance, cos_vpl, pair):
+    """_pair_term for the listed (point, VPL) pairs."""
     count = 0
     for i in range(len(points)):
-        p, v = points[i], lights[i]
-        dx, dy, dz = Y[v, 0] - P[p, 0], Y[v, 1] - P[p, 1], Y[v, 2] - P[p, 2]
-        dist2 = max(dx * dx + dy * dy + dz * dz, 1e-30)
-        cos_x = N[p, 0] * dx + N[p, 1] * dy + N[p, 2] * dz
-        cos_y = -(NY[v, 0] * dx + NY[v, 1] * dy + NY[v, 2] * dz)
-        above = G[p, 0] * dx + G[p, 1] * dy + G[p, 2] * dz
-        if cos_x <= 0 or cos_y <= 0 or above <= 0:
-            weight[i] = 0
-            continue
-        weight[i] = cos_x * cos_y / dist2 / max(dist2, min_distance2)
-        for c in range(3):
-            start = P[p, c] + G[p, c] * eps - centre[c]
-            origin[count, c] = start
-            direction[count, c] = (Y[v, c] - centre[c]) - np.float32(start)
-        distance[count] = np.sqrt(dist2)
-        cos_vpl[count] = cos_y / np.sqrt(dist2)
-        pairs[count] = i
-        count += 1
+        count = _pair_term(P, N, G, Y, NY, points[i], lights[i], i, min_distance2, eps,
+                           centre, weight, origin, direction, distance, cos_vpl, pair, count)
     return count
+
+
+@njit(cache=True, inline='always')
+def _pair_term(P, N, G, Y, NY, p, v, i, min_distance2, eps, centre, weight, origin,
+               direction, distance, cos_vpl, pair, count):
+    """weight[i]: point p's term from VPL v before visibility, cos_x cos_y / d^2 /
+    max(d^2, dmin^2) with unnormalised cosines (Keller 1997, eq. 5, the VPL's cosine
+    lobe); a positive one also gets shadow segment `count`, from p lifted off its
+    surface by eps, in the tracer's frame (relative to `centre`). Returns the count."""
+    dx, dy, dz = Y[v, 0] - P[p, 0], Y[v, 1] - P[p, 1], Y[v, 2] - P[p, 2]
+    dist2 = max(dx * dx + dy * dy + dz * dz, 1e-30)
+    cos_x = N[p, 0] * dx + N[p, 1] * dy + N[p, 2] * dz
+    cos_y = -(NY[v, 0] * dx + NY[v, 1] * dy + NY[v, 2] * dz)
+    above = G[p, 0] * dx + G[p, 1] * dy + G[p, 2] * dz
+    if cos_x <= 0 or cos_y <= 0 or above <= 0:
+        weight[i] = 0
+        return count
+    weight[i] = cos_x * cos_y / dist2 / max(dist2, min_distance2)
+    for c in range(3):
+        start = np.float32(P[p, c] + G[p, c] * eps - centre[c])
+        origin[count, c] = start
+        direction[count, c] = np.float32(Y[v, c] - centre[c]) - start
+    length = np.sqrt(dist2)
+    distance[count], cos_vpl[count], pair[count] = length, cos_y / length, i
+    return count + 1
 
 
 @dataclass

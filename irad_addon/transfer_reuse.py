@@ -139,7 +139,7 @@ def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sam
 def _trace(frame, gb, vpls, dense, point, light, min_distance, cancel):
     """The new transfer, traced over the thread pool: {group: (samples, VPLs) block}
     for the `dense` groups (group, samples, VPLs), gather.vpl_transfer in chunks, and
-    gather.pair_transfer of the (sample, VPL) pairs `point`, `light`. None when
+    gather.sparse_transfer of the (sample, VPL) pairs `point`, `light`. None when
     cancelled."""
     eps = frame.offset()
     d2 = min_distance ** 2
@@ -150,7 +150,7 @@ def _trace(frame, gb, vpls, dense, point, light, min_distance, cancel):
                                       frame.tracer, eps)
 
     def pairs(a, b):
-        return None, gather.pair_transfer(point[a:b], light[a:b], gb, vpls, d2, frame.tracer,
+        return None, gather.sparse_transfer(point[a:b], light[a:b], gb, vpls, d2, frame.tracer,
                                           eps)
 
     tasks = []
