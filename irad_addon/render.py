@@ -255,12 +255,15 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
             kept.coverage = antialiasing.coverage_map(coverage, gb)
         E_direct, E_indirect = antialiasing.irradiance_at_coverage(
             coverage, gb, E_direct, E_indirect, coverage=kept.coverage if kept else None)
-        # The Normal pass keeps the shading samples' interpolated normals.
-        coverage.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[coverage.pixel]
+        if kept is None or kept.still is None:
+            # The Normal pass keeps the shading samples' interpolated normals.
+            coverage.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[coverage.pixel]
         gb = coverage
         tally.add("coverage", t)
     if kept is not None and kept.still is None:
         kept.still = still_passes(gb, settings.film_transparent)
+        if coverage is not None:   # from now on only its pixels and mirror terms are read
+            kept.gbuffers = (kept.gbuffers[0], transfer_reuse.film_only(coverage))
     band = compose_passes(gb, E_direct, E_indirect, frame.scene.world_radiance,
                           settings.film_transparent, kept.still if kept else None)
     crop = slice(rows[0] - padded[0], rows[1] - padded[0])

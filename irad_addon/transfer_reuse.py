@@ -14,17 +14,17 @@ to be at the same place; each goes to an interleaved group by a hash of its id, 
 keeps its group whatever the other VPLs do, and each group's flux is scaled by
 N / (its size) as in gather.vpl_subsets.
 """
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from . import gather, rays
 from .gather import PAIRS_PER_TASK
 
-# Most bytes the kept G-buffers and transfer matrices may take; beyond it the frame is
-# gathered as usual. A shading sample's G-buffer rows, with its share of the coverage
-# samples', take about this many bytes.
-MAX_BYTES = 1 << 29
+# Most bytes what is kept may take; beyond it the frame is gathered as usual. Besides
+# its transfer, a shading sample keeps about this many bytes (measured: its G-buffer
+# row, its share of the coverage samples' map and passes, the filter's weights).
+MAX_BYTES = 1 << 30
 GBUFFER_BYTES = 600
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)   # Fibonacci hashing (Knuth, TAOCP 6.4)
 
@@ -76,6 +76,14 @@ class TransferCache:
         self.rays = 0
         return self.min_distance
 
+
+
+def film_only(gb):
+    """The G-buffer without its per-sample surfaces, for compose_passes once the still
+    passes are made: it reads only the pixels and the mirror terms."""
+    return replace(gb, **{name: None for name in (
+        "sample", "hit", "position", "normal", "geo_normal", "albedo", "emission", "depth",
+        "object_index", "holdout")})
 
 
 def fits(samples, vpls, subsets):
