@@ -79,8 +79,9 @@ def test_frames_trace_3x_fewer_rays_than_rebuilding_every_vpl(core):
     assert abs(ratio - 1) < 0.05, ratio
 
 
-@pytest.mark.parametrize("change", ["camera", "lightcuts"])
-def test_nothing_is_kept_when_the_camera_moves_or_lightcuts_gather(core, change):
+@pytest.mark.parametrize("change", ["camera", "lightcuts", "memory"])
+def test_nothing_is_kept_when_the_camera_moves_lightcuts_gather_or_it_is_too_big(
+        core, change, monkeypatch):
     cache = core.rays.RayTracerCache()
     state = core.variants.VariantState()
     s = settings(core, 'INCREMENTAL')
@@ -92,8 +93,11 @@ def test_nothing_is_kept_when_the_camera_moves_or_lightcuts_gather(core, change)
         turned = np.eye(4)
         turned[:3, :3] = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]   # looks at another wall
         data = box_scene(core, light_at(2), turned)
-    else:
+    elif change == "lightcuts":
         s.use_lightcuts = True
+        data = box_scene(core, light_at(2))
+    else:   # the image would need more than the memory bound to keep
+        monkeypatch.setattr(core.transfer_reuse, "MAX_BYTES", 1 << 16)
         data = box_scene(core, light_at(2))
     third = core.render.render_frame(data, s, tracer_cache=cache, variant_state=state)
     assert second.stats["shadow_rays_per_point"] < 0.25 * third.stats["shadow_rays_per_point"]
