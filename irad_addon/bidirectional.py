@@ -66,13 +66,10 @@ def reverse_vertices(frame, pilot, per_point, rng):
     keep = hits.hit
     tri, bary = hits.triangle[keep], hits.barycentric[keep]
     incoming = direction[keep]
-    position = geometry.surface_points(frame.triangles, tri, bary)
-    geo = geometry.face_forward(frame.geo_normals[tri], -incoming)
-    shading = geometry.face_forward(
-        geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
+    position, geo, shading, albedo, _ = geometry.surface_hits(frame, tri, bary, incoming)
     dist2 = np.maximum(((position - pilot.position[source[keep]]) ** 2).sum(1), 1e-30)
     own = local[keep, 2] * np.abs(np.einsum('ij,ij->i', incoming, geo)) / dist2
-    buffer = surface_buffer(position, shading, geo, frame.albedo[tri])
+    buffer = surface_buffer(position, shading, geo, albedo)
     return buffer, source[keep], own
 
 

@@ -58,25 +58,13 @@ def trace_surfaces(frame, origins, directions, tfar=None, smooth_normals=True):
     the geometric normal stands in for the interpolated one, for coverage samples)."""
     hits = frame.tracer.intersect(origins, directions, tfar)
     hit = hits.hit
-    # Every row is computed (misses on triangle 0) and misses zeroed after: cheaper
-    # than scattering through the hit mask when most rays hit.
-    tri = np.where(hit, hits.triangle, 0)
+    tri = np.where(hit, hits.triangle, 0)   # misses on triangle 0 (zeros for them)
     if len(frame.triangles) == 0:
         zeros = [np.zeros((len(hit), 3)) for _ in range(5)]
         return SurfacePoints(hit, tri, hits.distance, *zeros)
-    bary = hits.barycentric
-    geo = geometry.face_forward(frame.geo_normals[tri], -np.asarray(directions))
-    normal = (geometry.face_forward(
-        geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
-        if smooth_normals else geo.copy())
-    points = SurfacePoints(hit, tri, hits.distance,
-                           geometry.surface_points(frame.triangles, tri, bary), normal, geo,
-                           frame.albedo[tri], frame.emission[tri])
-    if not hit.all():
-        miss = ~hit
-        for name in ("position", "normal", "geo_normal", "albedo", "emission"):
-            getattr(points, name)[miss] = 0.0
-    return points
+    position, geo, normal, albedo, emission = geometry.surface_hits(
+        frame, tri, hits.barycentric, directions, hit, smooth_normals)
+    return SurfacePoints(hit, tri, hits.distance, position, normal, geo, albedo, emission)
 
 
 def build_gbuffer(frame, cam, samples, rng, rows=None, smooth_normals=True):

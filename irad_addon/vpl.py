@@ -99,12 +99,8 @@ def follow_paths(frame, origin, direction, flux, bounce_u, max_bounces, cancel=N
         keep = hits.hit
         tri, bary = hits.triangle[keep], hits.barycentric[keep]
         path, flux, incoming = path[keep], flux[keep], direction[keep]
-        position = geometry.surface_points(frame.triangles, tri, bary)
         # Surfaces are two-sided: normals face the side the particle came from.
-        geo = geometry.face_forward(frame.geo_normals[tri], -incoming)
-        shading = geometry.face_forward(
-            geometry.shading_normals(frame.corner_normals, tri, bary, geo), geo)
-        albedo = frame.albedo[tri]
+        position, geo, shading, albedo, _ = geometry.surface_hits(frame, tri, bary, incoming)
         vpl_flux = flux * albedo
         stored = vpl_flux.max(1) > 0
         found.append(VPLs(position[stored], shading[stored], vpl_flux[stored],
