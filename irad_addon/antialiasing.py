@@ -10,6 +10,7 @@ shading of MSAA and of decoupled sampling, Ragan-Kelley et al. 2011).
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 # Two samples lie on the same surface when their geometric normals agree within ~25
 # degrees and each is within this fraction of its depth of the other's tangent plane.
@@ -44,7 +45,8 @@ def surface_mismatch(cov, gb, index, candidates, strict=True):
     x_s, n_s = gb.position[safe], gb.geo_normal[safe]
     same = (candidates >= 0) & gb.hit[safe] & ~gb.holdout[safe]
     if strict:
-        same &= same_surface(x_c, n_c, cov.depth[index][:, None], x_s, n_s, gb.depth[safe])
+        same &= same_surface(cov, np.repeat(index, candidates.shape[1]), gb,
+                             safe.ravel()).reshape(same.shape)
     else:
         same &= np.einsum('...c,...c->...', n_c, n_s) > 0
     gap = x_c - x_s
@@ -70,16 +72,30 @@ def surface_weights(cov, gb, index, offsets, strict=True):
     return candidates, weights / np.where(total > 0, total, 1.0)
 
 
-def same_surface(position_a, normal_a, depth_a, position_b, normal_b, depth_b):
-    """bool (...): pairs of hit samples on the same surface: normals within
-    SAME_SURFACE_COS, each within PLANE_TOLERANCE of its depth of the other's plane.
-    Arrays (..., 3) and depths (...) broadcast against each other."""
-    dot = lambda a, b: np.einsum('...c,...c->...', a, b)   # noqa: E731
-    gap = position_a - position_b
-    tolerance = PLANE_TOLERANCE * np.minimum(depth_a, depth_b)
-    return ((dot(normal_a, normal_b) > SAME_SURFACE_COS)
-            & (np.abs(dot(gap, normal_a)) <= tolerance)
-            & (np.abs(dot(gap, normal_b)) <= tolerance))
+def same_surface(a, index_a, b, index_b):
+    """bool (n,): whether samples a[index_a] and b[index_b] of G-buffers a and b (hit
+    samples) lie on the same surface: geometric normals within SAME_SURFACE_COS, each
+    within PLANE_TOLERANCE of its depth of the other's tangent plane."""
+    out = np.empty(len(index_a), bool)
+    _same_surface(a.position, a.geo_normal, a.depth, np.asarray(index_a), b.position,
+                  b.geo_normal, b.depth, np.asarray(index_b), SAME_SURFACE_COS,
+                  PLANE_TOLERANCE, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _same_surface(position_a, normal_a, depth_a, index_a, position_b, normal_b, depth_b,
+                  index_b, cosine, tolerance, out):
+    for k in range(len(index_a)):
+        i, j = index_a[k], index_b[k]
+        facing = gap_a = gap_b = 0.0
+        for c in range(3):
+            gap = position_a[i, c] - position_b[j, c]
+            facing += normal_a[i, c] * normal_b[j, c]
+            gap_a += gap * normal_a[i, c]
+            gap_b += gap * normal_b[j, c]
+        limit = tolerance * min(depth_a[i], depth_b[j])
+        out[k] = facing > cosine and abs(gap_a) <= limit and abs(gap_b) <= limit
 
 
 def uniform_pixels(gb):
@@ -90,9 +106,7 @@ def uniform_pixels(gb):
     uniform = lit.all(0)
     first = np.arange(count)
     for s in range(1, gb.samples):
-        other = s * count + first
-        uniform &= same_surface(gb.position[first], gb.geo_normal[first], gb.depth[first],
-                                gb.position[other], gb.geo_normal[other], gb.depth[other])
+        uniform &= same_surface(gb, first, gb, s * count + first)
     return uniform
 
 
@@ -124,9 +138,7 @@ def coverage_map(cov, gb):
     # on that surface (the first shading sample stands for it).
     pixel = cov.pixel[todo]
     quick = uniform_pixels(gb)[pixel]
-    quick[quick] = same_surface(cov.position[todo[quick]], cov.geo_normal[todo[quick]],
-                                cov.depth[todo[quick]], gb.position[pixel[quick]],
-                                gb.geo_normal[pixel[quick]], gb.depth[pixel[quick]])
+    quick[quick] = same_surface(cov, todo[quick], gb, pixel[quick])
     result = CoverageMap(len(cov.hit), gb.samples, todo[quick], pixel[quick], [])
     todo = todo[~quick]
     all_pixels = [(0, 0)] + NEIGHBOURS
