@@ -18,9 +18,9 @@ PAIRS_PER_TASK = 1 << 18
 def light_sample_pattern(count, points, rng):
     """`count` 2D samples per point: a Hammersley set, toroidally shifted per point
     (Cranley-Patterson), so every point gets a stratified but different pattern."""
-    base = sampling.hammersley(count, 2)
-    shift = rng.random((points, 2))
-    return (base[:, None, :] + shift[None]) % 1.0
+    pattern = sampling.hammersley(count, 2)[:, None, :] + rng.random((points, 2))[None]
+    pattern -= np.floor(pattern)   # wrapped (np.remainder is slower)
+    return pattern
 
 
 def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):

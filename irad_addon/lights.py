@@ -41,8 +41,11 @@ def patch_area(axis_u, axis_v, ellipse):
 
 def patch_points(center, axis_u, axis_v, ellipse, u):
     """Uniform points on rectangles / ellipses (per row or one for all) from u (n, 2)."""
-    square = 2.0 * u - 1.0
-    uv = np.where(np.asarray(ellipse)[..., None], sampling.square_to_disk(u), square)
+    ellipse = np.asarray(ellipse)
+    if ellipse.ndim == 0:   # one shape for all: map only to it
+        uv = sampling.square_to_disk(u) if ellipse else 2.0 * u - 1.0
+    else:
+        uv = np.where(ellipse[..., None], sampling.square_to_disk(u), 2.0 * u - 1.0)
     return center + uv[:, :1] * axis_u + uv[:, 1:2] * axis_v
 
 
