@@ -74,6 +74,16 @@ def render_ours(addon):
     return image, seconds, settings, stats
 
 
+def warm_up(addon):
+    """One small render with each engine first, as `make bench` does: a process's first
+    render loads compiled kernels (numba's, Cycles') and starts thread pools."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = scenes.cornell_box("AREA", 16)
+    scene.render.engine = addon_install.ENGINE
+    reference.timed_render(scene)
+    render_cycles(1, True)
+
+
 # ---------------------------------------------------------------------- Cycles
 def cycles_reference():
     """Mean of two cached references and the estimated relMSE of that mean."""
@@ -152,7 +162,8 @@ def report_markdown(rows, ours_seconds, ref_relmse, stats, scene_desc):
         f"Reference: Cycles {len(REF_SEEDS)} x {REF_SPP} spp (box filter, no clamping, "
         f"32 bounces), estimated relMSE of the reference itself {ref_relmse:.1e}.",
         "Errors are against that reference; time is the wall clock of "
-        "bpy.ops.render.render (including writing the EXR).",
+        "bpy.ops.render.render (including writing the EXR), after one warm-up render of "
+        "each engine.",
         "",
         "| engine | settings | time [s] | VPLs | relMSE | RMSE | rel. bias | "
         "time ours / this |",
@@ -180,6 +191,7 @@ def main():
     os.makedirs(OUT, exist_ok=True)
     addon = addon_install.enable_extension()
 
+    warm_up(addon)
     ours, ours_seconds, settings, stats = render_ours(addon)
     ref, ref_relmse = cycles_reference()
     rows = [dict(engine="Instant Radiosity",
