@@ -6,6 +6,7 @@ the k x k neighbourhood among pixels whose depth and normal are continuous with 
 centre, so every pixel sees all subsets where the surface is smooth and edges stay sharp.
 """
 import numpy as np
+from numba import njit
 
 # Continuity thresholds of the discontinuity buffer: relative depth and normal cosine.
 DEPTH_TOLERANCE = 0.05
@@ -39,78 +40,55 @@ def window_offsets(k):
     return [(dy, dx) for dy in r for dx in r]
 
 
-def _padded(image, pad, fill, channels):
-    """image (..., H, W[, C]) with `pad` pixels of `fill` around H and W."""
-    lead = image.ndim - 2 - channels
-    width = [(0, 0)] * lead + [(pad, pad), (pad, pad)] + [(0, 0)] * channels
-    return np.pad(image, width, constant_values=fill)
-
-
-def discontinuity_filter(irradiance, depth, normal, hit, k, weights=None):
+def discontinuity_filter(irradiance, depth, normal, hit, k):
     """Average irradiance (..., H, W, 3) over k x k neighbours that continue the
-    centre's surface: |depth - depth_c| < tol * depth_c and normal . normal_c >
+    centre's surface: |depth - depth_c| <= tol * depth_c and normal . normal_c >=
     NORMAL_COSINE. Leading axes (the anti-aliasing layers) are filtered separately.
-    weights: discontinuity_weights of these depths, normals and hits, if already made."""
+    One compiled pass over the pixels and their window (numba)."""
     if k <= 1:
         return irradiance
-    pad = WINDOW_TILES * k
     h, w = depth.shape[-2:]
-    neighbours, count = weights or discontinuity_weights(depth, normal, hit, k)
-    # float32 planes with the channel axis first: every window is a cheap strided view.
-    planes = np.moveaxis(irradiance, -1, 0).astype(np.float32)
-    E = _padded(planes, pad, 0.0, 0)
-    total = np.zeros(planes.shape, np.float32)
-    for (dy, dx), same in zip(window_offsets(k), neighbours):
-        total += E[..., pad + dy:pad + dy + h, pad + dx:pad + dx + w] * same
-    filtered = np.where(count > 0, total / np.maximum(count, 1), planes)
-    return np.moveaxis(filtered, 0, -1).astype(np.float64)
+    layers = lambda a, c: np.ascontiguousarray(a, a.dtype).reshape((-1, h, w) + c)  # noqa: E731
+    out = np.empty(irradiance.shape)
+    _filter(layers(irradiance.astype(np.float64), (3,)), layers(depth.astype(np.float64), ()),
+            layers(normal.astype(np.float64), (3,)), layers(hit, ()),
+            np.array(window_offsets(k), np.int64), DEPTH_TOLERANCE, NORMAL_COSINE,
+            out.reshape((-1, h, w, 3)))
+    return out
 
 
-def discontinuity_weights(depth, normal, hit, k):
-    """Which neighbours of each window offset continue the centre's surface (bool
-    masks, one per window_offsets(k) entry), and how many do: the filter's weights,
-    which depend on the G-buffer only (a still camera keeps them)."""
-    f32 = np.float32
-    h, w = depth.shape[-2:]
-    pad = WINDOW_TILES * k
-    planes = lambda a: np.moveaxis(a, -1, 0).astype(f32)   # noqa: E731
-    N = _padded(planes(normal), pad, 0.0, 0)
-    Z, H = _padded(depth.astype(f32), pad, np.inf, 0), _padded(hit, pad, False, 0)
-    centre_normal, centre_depth = planes(normal), depth.astype(f32)
-    tolerance = (DEPTH_TOLERANCE * depth).astype(f32)
-    neighbours, count = [], np.zeros(depth.shape, f32)
-    for dy, dx in window_offsets(k):
-        window = (Ellipsis, slice(pad + dy, pad + dy + h), slice(pad + dx, pad + dx + w))
-        n = N[window]
-        cosine = n[0] * centre_normal[0]
-        cosine += n[1] * centre_normal[1]
-        cosine += n[2] * centre_normal[2]
-        same = H[window] & hit
-        same &= np.abs(Z[window] - centre_depth) <= tolerance
-        same &= cosine >= NORMAL_COSINE
-        neighbours.append(same)
-        count += same
-    return neighbours, count
+@njit(cache=True, nogil=True)
+def _filter(E, depth, normal, hit, offsets, depth_tolerance, normal_cosine, out):
+    layers, h, w = depth.shape
+    for layer in range(layers):
+        for y in range(h):
+            for x in range(w):
+                total = np.zeros(3)
+                count = 0
+                if hit[layer, y, x]:
+                    z, limit = depth[layer, y, x], depth_tolerance * depth[layer, y, x]
+                    for o in range(len(offsets)):
+                        v, u = y + offsets[o, 0], x + offsets[o, 1]
+                        if v < 0 or v >= h or u < 0 or u >= w or not hit[layer, v, u]:
+                            continue
+                        if abs(depth[layer, v, u] - z) > limit:
+                            continue
+                        cosine = (normal[layer, v, u, 0] * normal[layer, y, x, 0]
+                                  + normal[layer, v, u, 1] * normal[layer, y, x, 1]
+                                  + normal[layer, v, u, 2] * normal[layer, y, x, 2])
+                        if cosine < normal_cosine:
+                            continue
+                        total += E[layer, v, u]
+                        count += 1
+                out[layer, y, x] = total / count if count else E[layer, y, x]
 
 
-def _layers(gb):
-    """Per-sample arrays (S, ...) -> (samples, H, W, ...) anti-aliasing layers."""
-    return lambda a: a.reshape((gb.samples, gb.height, gb.width) + a.shape[1:])
-
-
-def filter_sample_layers(irradiance, gb, k, weights=None):
+def filter_sample_layers(irradiance, gb, k):
     """Run the discontinuity buffer on each anti-aliasing sample's image separately
-    (each layer holds every tile position once), per-sample irradiance in and out.
-    weights: layer_filter_weights(gb, k), if already made."""
+    (each layer holds every tile position once), per-sample irradiance in and out."""
     if k <= 1:
         return irradiance
-    layer = _layers(gb)
+    layer = lambda a: a.reshape((gb.samples, gb.height, gb.width) + a.shape[1:])  # noqa: E731
     out = discontinuity_filter(layer(irradiance), layer(gb.depth), layer(gb.normal),
-                               layer(gb.hit), k, weights)
+                               layer(gb.hit), k)
     return out.reshape(irradiance.shape)
-
-
-def layer_filter_weights(gb, k):
-    """filter_sample_layers' discontinuity_weights for G-buffer `gb`."""
-    layer = _layers(gb)
-    return discontinuity_weights(layer(gb.depth), layer(gb.normal), layer(gb.hit), k)

@@ -243,10 +243,7 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         E_indirect += bias_compensation.clamp_residual_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
         tally.add("bias_compensation", t)
-    if kept is not None and kept.filter_weights is None and k > 1:
-        kept.filter_weights = interleaving.layer_filter_weights(gb, k)
-    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k,
-                                                   kept.filter_weights if kept else None)
+    E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
     if check():
         raise Cancelled()
     if coverage is not None:

@@ -23,7 +23,7 @@ from .gather import PAIRS_PER_TASK
 
 # Most bytes what is kept may take; beyond it the frame is gathered as usual. Besides
 # its transfer, a shading sample keeps about this many bytes (measured: its G-buffer
-# row, its share of the coverage samples' map and passes, the filter's weights).
+# row, its share of the coverage samples' map and passes).
 MAX_BYTES = 1 << 30
 GBUFFER_BYTES = 600
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)   # Fibonacci hashing (Knuth, TAOCP 6.4)
@@ -48,13 +48,12 @@ class GroupTransfer:
 @dataclass
 class BandTransfer:
     """A band's G-buffers, the random state after them, its groups' transfer, and what
-    else depends on the G-buffers only: the antialiasing.CoverageMap, the discontinuity
-    buffer's weights and render.still_passes."""
+    else depends on the G-buffers only: the antialiasing.CoverageMap and
+    render.still_passes."""
     gbuffers: tuple
     rng_state: dict
     groups: dict = field(default_factory=dict)
     coverage: object = None
-    filter_weights: object = None
     still: dict = None
 
 
