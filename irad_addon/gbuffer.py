@@ -2,6 +2,7 @@
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from . import camera as camera_rays_module
 from . import geometry
@@ -33,11 +34,18 @@ class GBuffer:
 
     def pixel_mean(self, values):
         """Average per-sample values (S, C) into (height, width, C) pixels (a box filter)."""
-        values = values.reshape(len(self.pixel), -1)
-        count = self.width * self.height
-        out = np.stack([np.bincount(self.pixel, weights=values[:, c], minlength=count)
-                        for c in range(values.shape[1])], -1)
+        values = np.ascontiguousarray(values, np.float64).reshape(len(self.pixel), -1)
+        out = np.zeros((self.width * self.height, values.shape[1]))
+        _add_to_pixels(values, self.pixel, out)
         return (out / self.samples).reshape(self.height, self.width, -1)
+
+
+@njit(cache=True, nogil=True)
+def _add_to_pixels(values, pixel, out):
+    """out[pixel[i]] += values[i]: every channel in one pass (np.bincount takes one)."""
+    for i in range(len(pixel)):
+        for c in range(values.shape[1]):   # scalars: a row slice would allocate a view
+            out[pixel[i], c] += values[i, c]
 
 
 @dataclass

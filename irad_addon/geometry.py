@@ -53,11 +53,14 @@ def _surface_hits(triangles, geo_normals, corner_normals, albedo_table, emission
                   emission):
     f32 = np.float32
     for i in range(len(triangle)):
+        # Element by element: row slices would allocate views.
         if not hit[i]:
-            position[i], geo[i], shading[i], albedo[i], emission[i] = 0.0, 0.0, 0.0, 0.0, 0.0
+            for c in range(3):
+                position[i, c] = geo[i, c] = shading[i, c] = albedo[i, c] = emission[i, c] = 0.0
             continue
         t = triangle[i]
-        albedo[i], emission[i] = albedo_table[t], emission_table[t]
+        for c in range(3):
+            albedo[i, c], emission[i, c] = albedo_table[t, c], emission_table[t, c]
         u, v = barycentric[i, 0], barycentric[i, 1]
         facing = 0.0
         for c in range(3):
@@ -69,7 +72,8 @@ def _surface_hits(triangles, geo_normals, corner_normals, albedo_table, emission
         for c in range(3):
             geo[i, c] = sign * geo_normals[t, c]
         if not smooth:
-            shading[i] = geo[i]
+            for c in range(3):
+                shading[i, c] = geo[i, c]
             continue
         wu, wv = np.float64(u), np.float64(v)
         length2, towards = 0.0, 0.0
@@ -81,7 +85,8 @@ def _surface_hits(triangles, geo_normals, corner_normals, albedo_table, emission
             towards += s * geo[i, c]
         length = np.sqrt(length2)
         if not (length > 1e-8 and np.isfinite(length)):   # degenerate: the geometric one
-            shading[i] = geo[i]
+            for c in range(3):
+                shading[i, c] = geo[i, c]
             continue
         sign = -1.0 / length if towards < 0 else 1.0 / length
         for c in range(3):

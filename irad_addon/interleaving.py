@@ -63,7 +63,7 @@ def _filter(E, depth, normal, hit, offsets, depth_tolerance, normal_cosine, out)
     for layer in range(layers):
         for y in range(h):
             for x in range(w):
-                total = np.zeros(3)
+                red = green = blue = 0.0   # scalars: row slices would allocate views
                 count = 0
                 if hit[layer, y, x]:
                     z, limit = depth[layer, y, x], depth_tolerance * depth[layer, y, x]
@@ -78,9 +78,18 @@ def _filter(E, depth, normal, hit, offsets, depth_tolerance, normal_cosine, out)
                                   + normal[layer, v, u, 2] * normal[layer, y, x, 2])
                         if cosine < normal_cosine:
                             continue
-                        total += E[layer, v, u]
+                        red += E[layer, v, u, 0]
+                        green += E[layer, v, u, 1]
+                        blue += E[layer, v, u, 2]
                         count += 1
-                out[layer, y, x] = total / count if count else E[layer, y, x]
+                if count:
+                    out[layer, y, x, 0] = red / count
+                    out[layer, y, x, 1] = green / count
+                    out[layer, y, x, 2] = blue / count
+                else:
+                    out[layer, y, x, 0] = E[layer, y, x, 0]
+                    out[layer, y, x, 1] = E[layer, y, x, 1]
+                    out[layer, y, x, 2] = E[layer, y, x, 2]
 
 
 def filter_sample_layers(irradiance, gb, k):
