@@ -220,8 +220,7 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         report(0.2, f"Gathering {vpls.count} VPLs, new ones only")
         E_indirect, gather_stats["shadow_rays_per_point"] = \
             transfer_reuse.reused_indirect_irradiance(frame, gb, vpls, transfer[1], dmin,
-                                                      subset_of_sample, subsets, kept,
-                                                      transfer[0], check)
+                                                      subset_of_sample, subsets, kept, check)
     else:
         E_indirect = gather.indirect_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, check,

@@ -65,16 +65,13 @@ class TransferCache:
         self.key = None
         self.min_distance = 0.0
         self.bands = {}
-        self.rays = 0           # shadow rays traced for new columns, last frame
 
     def begin(self, key, min_distance):
         """Start a frame; returns the clamping distance to use: the one the kept
         transfer was computed with (it varies slightly with the VPL count)."""
         if key != self.key:
             self.key, self.min_distance, self.bands = key, min_distance, {}
-        self.rays = 0
         return self.min_distance
-
 
 
 def film_only(gb):
@@ -92,7 +89,7 @@ def fits(samples, vpls, subsets):
 
 
 def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sample, subsets,
-                               band, cache, cancel=None):
+                               band, cancel=None):
     """Irradiance (S, 3) from the VPLs like gather.indirect_irradiance, with the kept
     VPLs' transfer from `band` (a BandTransfer, updated in place) and new columns traced
     only for the VPLs not seen before. Returns E and the new VPLs gathered per point."""
@@ -123,7 +120,6 @@ def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sam
     if traced is None:
         return E, 0.0
     blocks, new_transfer = traced
-    cache.rays += sum(len(idx) * len(mine) for _, idx, mine in dense) + len(new_transfer)
 
     groups, new_per_point, start = {}, np.zeros(len(gb.hit)), 0
     for k, idx, mine, kept, columns in plans:
@@ -131,7 +127,8 @@ def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sam
             transfer = blocks[k]
         else:
             transfer = np.empty((len(idx), len(mine)), np.float32)
-            transfer[:, kept] = band.groups[k].transfer[:, columns]
+            if kept.any():
+                transfer[:, kept] = band.groups[k].transfer[:, columns]
             fresh = len(idx) * int((~kept).sum())
             transfer[:, ~kept] = new_transfer[start:start + fresh].reshape(len(idx), -1)
             start += fresh
@@ -157,8 +154,8 @@ def _trace(frame, gb, vpls, dense, point, light, min_distance, cancel):
                                       frame.tracer, eps)
 
     def pairs(a, b):
-        return None, gather.sparse_transfer(point[a:b], light[a:b], gb, vpls, d2, frame.tracer,
-                                          eps)
+        return None, gather.sparse_transfer(point[a:b], light[a:b], gb, vpls, d2,
+                                            frame.tracer, eps)
 
     tasks = []
     for k, idx, mine in dense:

@@ -120,3 +120,22 @@ def test_a_material_change_starts_afresh(core):
                                      variant_state=core.variants.VariantState())
     for name in ("Combined", "Albedo"):
         assert np.allclose(kept.passes[name], fresh.passes[name], rtol=1e-5, atol=1e-7), name
+
+
+def test_groups_without_samples_in_view(core):
+    """A small object in a black void: most interleaved groups have no sample that sees
+    anything, but their VPLs still exist; frames render, and keep what they can."""
+    sd = core.scene_data
+    # A speck ahead of the camera (z = -2.95) and, behind it (z = 2), a wall that holds
+    # the VPLs.
+    speck = synthetic.grid_quad(1, 0.05) - np.array([0.0, 0.0, 3.0], np.float32)
+    wall = synthetic.grid_quad(2, 2.0)
+    state, cache, s = core.variants.VariantState(), core.rays.RayTracerCache(), settings(
+        core, 'INCREMENTAL')
+    for i in range(3):
+        light = sd.PointLight(np.array([0.1 * i, 0.0, 1.0]), np.ones(3), 50.0, 0.0)
+        data = synthetic.scene(sd, np.concatenate([speck, wall]), [0.7] * 3,
+                               lights=[light], camera=synthetic.camera(sd, size=16))
+        result = core.render.render_frame(data, s, tracer_cache=cache, variant_state=state)
+        image = result.passes["Combined"]
+        assert np.isfinite(image).all() and image.max() > 0
