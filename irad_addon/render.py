@@ -110,7 +110,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     report(0.02, "Shooting particles")
     reuse = vpl_cache is not None and settings.temporal_reuse
     if reuse:
-        setup_key = temporal.light_setup_key(scene, settings, frame.tracer.fingerprint)
+        setup_key = temporal.light_setup_key(scene, settings, frame.surfaces_key)
     if vpls is None and reuse:
         vpls = vpl_cache.lookup(setup_key)
     variant_info = {}

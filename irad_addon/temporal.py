@@ -13,14 +13,11 @@ _VPL_SETTINGS = ("particles", "max_bounces", "seed", "variant", "sequence")
 _CAMERA_DEPENDENT = ("BIDIRECTIONAL", "METROPOLIS", "AUTO")
 
 
-def light_setup_key(scene, settings, geometry_key):
-    """A digest of everything the VPLs depend on except the camera; geometry_key is
-    the ray tracer's fingerprint of the triangles (hashed once per frame, there)."""
-    h = hashlib.blake2b(digest_size=16)
-    h.update(geometry_key)
-    for array in (scene.mesh.material_index, scene.materials.albedo, scene.materials.emission,
-                  scene.world_radiance):
-        h.update(np.ascontiguousarray(array).tobytes())
+def light_setup_key(scene, settings, surfaces_key):
+    """A digest of everything the VPLs depend on except the camera; surfaces_key is
+    the frame's Frame.surfaces_key (triangles, shading normals, materials)."""
+    h = hashlib.blake2b(surfaces_key, digest_size=16)
+    h.update(np.ascontiguousarray(scene.world_radiance).tobytes())
     h.update(repr([(type(light).__name__, sorted(vars(light).items(), key=str))
                    for light in [*scene.lights, *scene.portals]]).encode())
     h.update(repr([getattr(settings, name) for name in _VPL_SETTINGS]).encode())

@@ -31,3 +31,24 @@ def test_camera_fly_through_reuses_vpls_and_a_moving_light_does_not(addon):
     third = frame(0.3, light_x=-0.2)         # the light moved: new VPLs
     assert cache.reused == 1 and third.vpls is not second.vpls
     assert not np.allclose(third.passes["IRAD Indirect"], second.passes["IRAD Indirect"])
+
+
+def test_smoothed_normals_give_new_vpls(addon):
+    # The same triangles shaded smooth instead of flat: particles bounce about other
+    # normals, so the last frame's VPLs must not be reused.
+    core = addon.irad_addon
+    sd = core.scene_data
+    cache = core.temporal.VplCache()
+    settings = core.render.RenderSettings(particles=256)
+    light = sd.PointLight(np.array([0.2, 0.1, 0.6]), np.ones(3), 100.0, 0.0)
+    box = synthetic.closed_box(3)
+    flat = synthetic.scene(sd, box, [0.6] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=16))
+    centred = box.astype(np.float64)   # normals pointing away from the centre
+    smooth = synthetic.scene(sd, box, [0.6] * 3, lights=[light],
+                             camera=synthetic.camera(sd, size=16),
+                             normals=(centred / np.linalg.norm(centred, axis=2,
+                                                               keepdims=True)).astype(np.float32))
+    first = core.render.render_frame(flat, settings, vpl_cache=cache)
+    second = core.render.render_frame(smooth, settings, vpl_cache=cache)
+    assert cache.reused == 0 and second.vpls is not first.vpls
