@@ -31,9 +31,9 @@ def nondegenerate(triangles, extent):
 def surface_hits(frame, triangle, barycentric, incoming, hit=None, smooth=True):
     """Position, geometric normal, shading normal, albedo and emission (n, 3) of ray
     hits on triangles `triangle` at `barycentric` (u, v), for rays along `incoming`;
-    zeros where `hit` is False. Surfaces are two-sided: both normals face the side the ray came from, the
-    shading normal (the corner normals interpolated, smooth=False: the geometric one)
-    turned to the geometric one's side. Positions come from barycentrics, more precise
+    zeros where `hit` is False. Surfaces are two-sided: both normals face the side the
+    ray came from, the shading normal (the corner normals interpolated, smooth=False:
+    the geometric one) turned to the geometric one's side. Positions come from barycentrics, more precise
     than origin + t * direction: the offset within the triangle is float32 (its error
     scales with the triangle, not with its distance from the origin), the corner it is
     added to float64. One compiled pass: numpy would make a dozen over the hits."""

@@ -48,10 +48,13 @@ def discontinuity_filter(irradiance, depth, normal, hit, k):
     if k <= 1:
         return irradiance
     h, w = depth.shape[-2:]
-    layers = lambda a, c: np.ascontiguousarray(a, a.dtype).reshape((-1, h, w) + c)  # noqa: E731
+
+    def layers(a, dtype, *channels):
+        return np.ascontiguousarray(a, dtype).reshape((-1, h, w, *channels))
+
     out = np.empty(irradiance.shape)
-    _filter(layers(irradiance.astype(np.float64), (3,)), layers(depth.astype(np.float64), ()),
-            layers(normal.astype(np.float64), (3,)), layers(hit, ()),
+    _filter(layers(irradiance, np.float64, 3), layers(depth, np.float64),
+            layers(normal, np.float64, 3), layers(hit, bool),
             np.array(window_offsets(k), np.int64), DEPTH_TOLERANCE, NORMAL_COSINE,
             out.reshape((-1, h, w, 3)))
     return out
