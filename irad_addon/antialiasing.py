@@ -5,12 +5,15 @@ irradiance does not: it varies smoothly along a surface. So the G-buffer is trac
 twice: `aa_samples` shading samples per pixel gather light, and `coverage_samples`
 camera rays per pixel each take the mean irradiance of the shading samples on the
 same surface, in their own pixel or else a neighbour (the split of coverage and
-shading of MSAA and of decoupled sampling, Ragan-Kelley et al. 2011).
+shading of MSAA and of decoupled sampling, Ragan-Kelley et al. 2011). Coverage rays
+are traced only in pixels an edge may cross; the others keep their shading samples.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numba import njit
+
+from .gbuffer import GBuffer, build_gbuffer
 
 # Two samples lie on the same surface when their geometric normals agree within ~25
 # degrees and each is within this fraction of its depth of the other's tangent plane.
@@ -110,20 +113,79 @@ def uniform_pixels(gb):
     return uniform
 
 
+def surface_class(gb):
+    """int8 (S,): what a camera sample sees, 0 background, 1 holdout, 2 a surface,
+    + 3 if a light is seen (emission, or an area light in a mirror on the way),
+    + 6 if seen in a mirror."""
+    bright = gb.emission.max(1) > 0
+    mirrored = np.zeros(len(gb.hit), bool)
+    if gb.throughput is not None:
+        bright |= gb.mirrored_light.max(1) > 0
+        mirrored = (gb.throughput != 1.0).any(1)
+    base = np.where(gb.hit, np.where(gb.holdout, 1, 2), 0)
+    return (base + 3 * bright + 6 * mirrored).astype(np.int8)
+
+
+def edge_pixels(gb):
+    """bool (pixels,): pixels an edge may cross, where coverage rays are traced: their
+    shading samples differ (in class, object or surface), or the first one differs
+    from a neighbour's first (8 neighbours: an edge that misses every shading sample
+    of a pixel shows between the pixel and the one across it)."""
+    count = gb.width * gb.height
+    kind = surface_class(gb).reshape(gb.samples, count)
+    obj = gb.object_index.reshape(gb.samples, count)
+    surface = (kind % 3) == 2
+    edge = ((kind != kind[0]) | (obj != obj[0])).any(0)
+    edge |= surface[0] & ~uniform_pixels(gb)
+    y, x = np.divmod(np.arange(count), gb.width)
+    for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):   # each pair of neighbours once
+        inside = (y + dy < gb.height) & (x + dx >= 0) & (x + dx < gb.width)
+        a = np.flatnonzero(inside)
+        b = a + dy * gb.width + dx
+        differ = (kind[0, a] != kind[0, b]) | (obj[0, a] != obj[0, b])
+        both = np.flatnonzero(~differ & surface[0, a])
+        differ[both] = ~same_surface(gb, a[both], gb, b[both])
+        edge[a[differ]] = True
+        edge[b[differ]] = True
+    return edge
+
+
+def film_gbuffer(frame, cam, gb, samples, rng, rows):
+    """The samples the image is averaged from, and the CoverageMap that carries the
+    shading samples' irradiance to them: `samples` coverage rays in each edge pixel,
+    the shading samples themselves in every other pixel (most of them: one surface,
+    nothing to resolve)."""
+    edge = edge_pixels(gb)
+    cov = build_gbuffer(frame, cam, samples, rng, rows, smooth_normals=False,
+                        pixels=np.flatnonzero(edge))
+    own = np.flatnonzero(~edge[gb.pixel])
+    joined = {}
+    for f in fields(GBuffer):
+        a, b = getattr(gb, f.name), getattr(cov, f.name)
+        if isinstance(a, np.ndarray) and f.name != "counts":
+            joined[f.name] = np.concatenate([a[own], b])
+    film = GBuffer(gb.width, gb.height, gb.row_start, samples, **joined)
+    film.counts = np.bincount(film.pixel, minlength=gb.width * gb.height)
+    return film, coverage_map(film, gb, own)
+
+
 @dataclass
 class CoverageMap:
-    """Which shading samples each coverage sample takes its irradiance from: the pixel
-    mean for `quick` (pixels on one surface), else weights over candidates per stage.
-    It depends on the G-buffers only, so a still camera keeps it across frames."""
-    count: int            # coverage samples
+    """Where each film sample takes its irradiance from: the shading sample itself for
+    `own`, the pixel mean for `quick` (pixels on one surface), else weights over
+    candidates per stage. It depends on the G-buffers only, so a still camera keeps
+    it across frames."""
+    count: int            # film samples
     samples: int          # shading samples per pixel
-    quick: np.ndarray     # coverage samples that take their pixel's mean
+    own: np.ndarray       # the shading samples that are film samples 0 .. len(own) - 1
+    quick: np.ndarray     # film samples that take their pixel's mean
     quick_pixel: np.ndarray
-    stages: list          # [(coverage samples, candidates (n, K), weights (n, K))]
+    stages: list          # [(film samples, candidates (n, K), weights (n, K))]
 
     def carry(self, E):
-        """(S, 3) shading-sample irradiance -> (coverage samples, 3)."""
+        """(S, 3) shading-sample irradiance -> (film samples, 3)."""
         out = np.zeros((self.count, 3))
+        out[:len(self.own)] = E[self.own]
         pixel_mean = E.reshape(self.samples, -1, 3).mean(0)
         out[self.quick] = pixel_mean[self.quick_pixel]
         for todo, candidates, weights in self.stages:
@@ -131,15 +193,20 @@ class CoverageMap:
         return out
 
 
-def coverage_map(cov, gb):
-    """The CoverageMap of irradiance_at_coverage."""
-    todo = np.flatnonzero(cov.hit & ~cov.holdout)
+def coverage_map(cov, gb, own=None):
+    """The CoverageMap of samples `cov` over the shading samples `gb`, the first of them
+    the shading samples `own` (a film_gbuffer). The others take the mean over the
+    shading samples on the same surface in their own pixel, else in the neighbouring
+    pixels; a sub-pixel sliver no shading sample lies on takes the nearest one facing
+    the same way; misses and holdouts get zero."""
+    own = np.zeros(0, np.int64) if own is None else own
+    todo = len(own) + np.flatnonzero((cov.hit & ~cov.holdout)[len(own):])
     # Fast path: a pixel whose shading samples share one surface, and coverage samples
     # on that surface (the first shading sample stands for it).
     pixel = cov.pixel[todo]
     quick = uniform_pixels(gb)[pixel]
     quick[quick] = same_surface(cov, todo[quick], gb, pixel[quick])
-    result = CoverageMap(len(cov.hit), gb.samples, todo[quick], pixel[quick], [])
+    result = CoverageMap(len(cov.hit), gb.samples, own, todo[quick], pixel[quick], [])
     todo = todo[~quick]
     all_pixels = [(0, 0)] + NEIGHBOURS
     for offsets, strict in (([(0, 0)], True), (NEIGHBOURS, True), (all_pixels, False)):
@@ -149,13 +216,3 @@ def coverage_map(cov, gb):
         result.stages.append((todo, np.maximum(candidates, 0), weights))
         todo = todo[weights.sum(1) == 0]
     return result
-
-
-def irradiance_at_coverage(cov, gb, *irradiances, coverage=None):
-    """Each (S, 3) shading-sample irradiance carried to the coverage samples that see
-    a surface: the mean over the shading samples on the same surface in their own
-    pixel, else in the neighbouring pixels; a sub-pixel sliver no shading sample lies
-    on takes the nearest one facing the same way; misses and holdouts get zero.
-    coverage: the G-buffers' CoverageMap, if already made."""
-    coverage = coverage or coverage_map(cov, gb)
-    return [coverage.carry(E) for E in irradiances]

@@ -46,14 +46,16 @@ def camera_rays(cam, pixel_x, pixel_y):
     return origins, directions, cos_axis
 
 
-def pixel_samples(width, rows, samples, rng):
+def pixel_samples(width, rows, samples, rng, pixels=None):
     """Continuous pixel coordinates for `samples` rays per pixel of image rows
-    rows = (first, stop): the pixel centre for one sample, stratified jitter over the
-    pixel (a box filter) for more. Returns (pixel_x, pixel_y, pixel_index within the
-    rows, sample_index), sample-major."""
-    ys, xs = np.mgrid[rows[0]:rows[1], 0:width]
-    xs = xs.ravel().astype(np.float64)
-    ys = ys.ravel().astype(np.float64)
+    rows = (first, stop), or only of `pixels` (indices within those rows): the pixel
+    centre for one sample, stratified jitter over the pixel (a box filter) for more.
+    Returns (pixel_x, pixel_y, pixel_index within the rows, sample_index), sample-major."""
+    if pixels is None:
+        pixels = np.arange((rows[1] - rows[0]) * width)
+    ys, xs = np.divmod(pixels, width)
+    xs = xs.astype(np.float64)
+    ys = (ys + rows[0]).astype(np.float64)
     count = xs.size
     if samples == 1:
         offsets = np.full((1, count, 2), 0.5)
@@ -68,6 +70,6 @@ def pixel_samples(width, rows, samples, rng):
         offsets -= np.floor(offsets)   # wrapped into the pixel (np.remainder is slower)
     px = (xs[None, :] + offsets[..., 0]).ravel()
     py = (ys[None, :] + offsets[..., 1]).ravel()
-    pixel = np.tile(np.arange(count), samples)
+    pixel = np.tile(pixels, samples)
     sample = np.repeat(np.arange(samples), count)
     return px, py, pixel, sample

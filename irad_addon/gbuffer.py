@@ -31,13 +31,17 @@ class GBuffer:
     # float64 (S, 3): radiance of the lights seen in mirrors on the way, each times the
     # reflectances before it; None: no mirrors seen
     mirrored_light: np.ndarray | None = None
+    # int64 (pixels,): samples per pixel where pixels have different counts (the film
+    # of antialiasing.film_gbuffer); None: `samples` in every pixel
+    counts: np.ndarray | None = None
 
     def pixel_mean(self, values):
         """Average per-sample values (S, C) into (height, width, C) pixels (a box filter)."""
         values = np.ascontiguousarray(values, np.float64).reshape(len(self.pixel), -1)
         out = np.zeros((self.width * self.height, values.shape[1]))
         _add_to_pixels(values, self.pixel, out)
-        return (out / self.samples).reshape(self.height, self.width, -1)
+        count = self.samples if self.counts is None else np.maximum(self.counts, 1)[:, None]
+        return (out / count).reshape(self.height, self.width, -1)
 
 
 @njit(cache=True, nogil=True)
@@ -75,10 +79,12 @@ def trace_surfaces(frame, origins, directions, tfar=None, smooth_normals=True):
     return SurfacePoints(hit, tri, hits.distance, position, normal, geo, albedo, emission)
 
 
-def build_gbuffer(frame, cam, samples, rng, rows=None, smooth_normals=True):
-    """G-buffer of image rows rows = (first, stop), the whole image by default."""
+def build_gbuffer(frame, cam, samples, rng, rows=None, smooth_normals=True, pixels=None):
+    """G-buffer of image rows rows = (first, stop), the whole image by default; only
+    of `pixels` (indices within the rows) if given."""
     rows = rows or (0, cam.height)
-    px, py, pixel, sample = camera_rays_module.pixel_samples(cam.width, rows, samples, rng)
+    px, py, pixel, sample = camera_rays_module.pixel_samples(cam.width, rows, samples, rng,
+                                                            pixels)
     origins, directions, cos_axis = camera_rays_module.camera_rays(cam, px, py)
     # Clip planes are distances along the view axis (cos_axis is 1 for orthographic).
     near = cam.clip_start / cos_axis

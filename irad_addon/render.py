@@ -183,16 +183,17 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     report(0.0, "Tracing camera rays")
     kept = transfer[0].bands.get(rows) if transfer is not None else None
     if kept is not None:   # the same camera, geometry and settings: the same G-buffers
-        gb, coverage = kept.gbuffers
+        (gb, film), coverage = kept.gbuffers, kept.coverage
         rng.bit_generator.state = kept.rng_state
     else:
         gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
-        coverage = (build_gbuffer(frame, cam, settings.coverage_samples, rng, padded,
-                                  smooth_normals=False)
-                    if settings.coverage_samples > settings.aa_samples else None)
+        film = coverage = None
+        if settings.coverage_samples > settings.aa_samples:
+            film, coverage = antialiasing.film_gbuffer(frame, cam, gb,
+                                                       settings.coverage_samples, rng, padded)
         if transfer is not None:
             kept = transfer[0].bands[rows] = transfer_reuse.BandTransfer(
-                (gb, coverage), rng.bit_generator.state)
+                (gb, film), rng.bit_generator.state, coverage=coverage)
     tally.add("gbuffer", t)
 
     t = time.perf_counter()
@@ -245,21 +246,18 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
     if check():
         raise Cancelled()
-    if coverage is not None:
+    if film is not None:
         t = time.perf_counter()
-        if kept is not None and kept.coverage is None:
-            kept.coverage = antialiasing.coverage_map(coverage, gb)
-        E_direct, E_indirect = antialiasing.irradiance_at_coverage(
-            coverage, gb, E_direct, E_indirect, coverage=kept.coverage if kept else None)
+        E_direct, E_indirect = coverage.carry(E_direct), coverage.carry(E_indirect)
         if kept is None or kept.still is None:
             # The Normal pass keeps the shading samples' interpolated normals.
-            coverage.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[coverage.pixel]
-        gb = coverage
+            film.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[film.pixel]
+        gb = film
         tally.add("coverage", t)
     if kept is not None and kept.still is None:
         kept.still = still_passes(gb, settings.film_transparent)
-        if coverage is not None:   # from now on only its pixels and mirror terms are read
-            kept.gbuffers = (kept.gbuffers[0], transfer_reuse.film_only(coverage))
+        if film is not None:   # from now on only its pixels and mirror terms are read
+            kept.gbuffers = (kept.gbuffers[0], transfer_reuse.film_only(film))
     band = compose_passes(gb, E_direct, E_indirect, frame.scene.world_radiance,
                           settings.film_transparent, kept.still if kept else None)
     crop = slice(rows[0] - padded[0], rows[1] - padded[0])

@@ -44,6 +44,24 @@ def test_edge_samples_antialias_like_many_shaded_samples(addon):
     assert unchanged[~edges].mean() > 0.9
 
 
+def test_coverage_rays_only_in_pixels_edges_cross(addon):
+    # Where 64 samples per pixel see another normal than 4 do, a geometric edge
+    # crosses the pixel: coverage rays must be traced there, and only near such pixels
+    # (both sides of an edge that runs between two pixels' samples: measured 3.5x the
+    # pixels an edge crosses).
+    core = addon.irad_addon
+    data = box_with_a_panel(core, 48)
+    normals = {n: core.render.render_frame(data, core.render.RenderSettings(
+        particles=64, aa_samples=n, coverage_samples=0)).passes["Normal"] for n in (4, 64)}
+    edges = np.abs(normals[64] - normals[4]).max(-1) > 0.05
+    frame = core.frame.prepare_frame(data)
+    gb = core.gbuffer.build_gbuffer(frame, data.camera, 4, np.random.default_rng(0))
+    traced = core.antialiasing.edge_pixels(gb).reshape(edges.shape)
+    assert edges.mean() > 0.02
+    assert traced[edges].mean() > 0.97, traced[edges].mean()
+    assert traced.mean() < 4 * edges.mean(), (traced.mean(), edges.mean())
+
+
 def test_edge_samples_keep_silhouettes_against_the_background(addon):
     core = addon.irad_addon
     data = box_with_a_panel(core)
