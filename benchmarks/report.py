@@ -323,7 +323,7 @@ def throughput_section(results):
              "and replayed through a bare embreex scene (same triangles, robust traversal) "
              "with the same batches: on one thread and on one thread per core (as the gather "
              f"runs). Best of several repeats each, same run. {tp['cpu_count']} CPU threads. "
-             "Pairs are the pixel-VPL pairs `gather.vpl_irradiance_chunk` evaluates (the "
+             "Pairs are the pixel-VPL pairs `gather.group_irradiance` evaluates (the "
              "exhaustive gather; a lightcut evaluates cut nodes through its own code). "
              "Particles are chosen per configuration for a few million shadow rays.", "",
              "| config | VPLs | pixel-VPL pairs | shadow rays | gather [s] | gather Mpairs/s | "

@@ -41,7 +41,7 @@ class GatherProbe:
 
     def __enter__(self):
         gather = self.core.gather
-        self._gather, self._chunk = gather.indirect_irradiance, gather.vpl_irradiance_chunk
+        self._gather, self._groups = gather.indirect_irradiance, gather.group_irradiance
         probe = self
 
         def indirect(*args, **kwargs):   # called once per image band
@@ -53,17 +53,17 @@ class GatherProbe:
                 probe.gather_seconds[-1] += time.perf_counter() - t
                 probe._in_gather = False
 
-        def chunk(P, N, G, vpl_position, *rest, **kwargs):
+        def groups(samples, pairs, *rest, **kwargs):
             with probe._lock:
-                probe.pairs[-1] += len(P) * len(vpl_position)
-            return probe._chunk(P, N, G, vpl_position, *rest, **kwargs)
+                probe.pairs[-1] += pairs
+            return probe._groups(samples, pairs, *rest, **kwargs)
 
-        gather.indirect_irradiance, gather.vpl_irradiance_chunk = indirect, chunk
+        gather.indirect_irradiance, gather.group_irradiance = indirect, groups
         return self
 
     def __exit__(self, *exc):
         self.core.gather.indirect_irradiance = self._gather
-        self.core.gather.vpl_irradiance_chunk = self._chunk
+        self.core.gather.group_irradiance = self._groups
 
     def wrap_tracer(self, tracer):
         original = type(tracer).occluded.__get__(tracer)

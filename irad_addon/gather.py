@@ -51,18 +51,39 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
     return E
 
 
+@dataclass
+class GroupedVPLs:
+    """The VPLs listed by interleaved group: group k is order[start[k]:stop[k]], its
+    flux scaled by scale[k] (vpl_subsets)."""
+    order: np.ndarray
+    start: np.ndarray
+    stop: np.ndarray
+    scale: np.ndarray
+
+
+def grouped_vpls(count, subsets):
+    """GroupedVPLs of `count` VPLs in `subsets` groups, as vpl_subsets groups them."""
+    if count < subsets:
+        first = np.arange(subsets)
+        return GroupedVPLs(first % max(count, 1), first, first + 1,
+                           np.full(subsets, float(count)))
+    group = np.arange(count) % subsets
+    sizes = np.bincount(group, minlength=subsets)
+    stop = np.cumsum(sizes)
+    return GroupedVPLs(np.argsort(group, kind='stable'), stop - sizes, stop, count / sizes)
+
+
 def vpl_subsets(vpls, subsets):
     """Interleave the VPLs into `subsets` groups (j mod subsets), each group's flux
     scaled by N / (its size): every group alone estimates the whole set's light, so a
     pixel that sees only a few groups (next to an edge, where the discontinuity buffer
     has few neighbours) is not brighter or darker for the sizes of the groups it sees.
     With fewer VPLs than groups, group k holds VPL k mod N."""
-    count = vpls.count
-    if count < subsets:
-        return [(vpls.subset(slice(k % count, k % count + 1)), float(count))
-                for k in range(subsets)] if count else []
-    return [(vpls.subset(slice(k, None, subsets)), count / len(range(k, count, subsets)))
-            for k in range(subsets)]
+    if vpls.count == 0:
+        return []
+    g = grouped_vpls(vpls.count, subsets)
+    return [(vpls.subset(g.order[a:b]), float(scale))
+            for a, b, scale in zip(g.start, g.stop, g.scale)]
 
 
 def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distance2,
@@ -157,6 +178,39 @@ def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, we
     return count
 
 
+@njit(cache=True, nogil=True)
+def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
+                 min_distance2, eps, centre, weight, origin, direction, distance, cos_vpl,
+                 pair):
+    """_pair_term for every sample and each VPL of its group, pair by pair."""
+    i = count = 0
+    for s in samples:
+        k = group_of_sample[s]
+        for j in range(start[k], stop[k]):
+            count = _pair_term(P, N, G, Y, NY, s, order[j], i, min_distance2, eps, centre,
+                               weight, origin, direction, distance, cos_vpl, pair, count)
+            i += 1
+    return count
+
+
+@njit(cache=True, nogil=True)
+def _group_sums(samples, group_of_sample, start, stop, order, scale, weight, flux, E):
+    """E[s] = scale / pi sum over the group's VPLs of weight * flux, in _group_terms'
+    pair order."""
+    i = 0
+    for s in samples:
+        k = group_of_sample[s]
+        red = green = blue = 0.0
+        for j in range(start[k], stop[k]):
+            v = order[j]
+            red += weight[i] * flux[v, 0]
+            green += weight[i] * flux[v, 1]
+            blue += weight[i] * flux[v, 2]
+            i += 1
+        f = scale[k] / np.pi
+        E[s, 0], E[s, 1], E[s, 2] = red * f, green * f, blue * f
+
+
 @njit(cache=True, inline='always')
 def _pair_term(P, N, G, Y, NY, p, v, i, min_distance2, eps, centre, weight, origin,
                direction, distance, cos_vpl, pair, count):
@@ -210,8 +264,39 @@ def facing_points(vpls, points):
     return reach.max(1) > 0
 
 
-def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
-    """(sample indices, VPL subset, flux scale, light tree or None) per worker task."""
+def grouped_tasks(gb, vpls, subset_of_sample, subsets):
+    """(GroupedVPLs, tasks): the hit samples sorted by interleaved group and split into
+    (samples, pairs) tasks of about PAIRS_PER_TASK pairs, a few per thread at least.
+    VPLs facing away from every sample are left out of the groups (no work)."""
+    hits = np.flatnonzero(gb.hit)
+    hits = hits[np.argsort(subset_of_sample[hits], kind='stable')]
+    g = grouped_vpls(vpls.count, subsets)
+    kept = facing_points(vpls, gb.position[hits])[g.order]
+    ends = np.concatenate([[0], np.cumsum(kept)])
+    g = GroupedVPLs(g.order[kept], ends[g.start], ends[g.stop], g.scale)
+    pairs = np.cumsum((g.stop - g.start)[subset_of_sample[hits]])
+    total = int(pairs[-1])
+    pieces = max(-(-total // PAIRS_PER_TASK), 4 * rays.worker_count())
+    cuts = np.searchsorted(pairs, total * np.arange(1, pieces) / pieces, side='right')
+    bounds = np.unique(np.concatenate([[0], cuts, [len(hits)]]))
+    before = np.concatenate([[0], pairs])
+    return g, [(hits[a:b], int(before[b] - before[a])) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def group_irradiance(samples, pairs, subset_of_sample, groups, gb, vpls, min_distance2,
+                     tracer, eps, E, visible=None):
+    """E[samples] from the VPLs of each sample's interleaved group (`pairs` in all):
+    vpl_irradiance_chunk's sum, over pairs listed group by group."""
+    weight, segments = np.empty(pairs, np.float32), _segments(pairs)
+    arrays = _contiguous(gb.position, gb.normal, gb.geo_normal, vpls.position, vpls.normal)
+    lists = (samples, subset_of_sample, groups.start, groups.stop, groups.order)
+    count = _group_terms(*lists, *arrays, min_distance2, eps, tracer.center, weight, *segments)
+    _shadow_test(weight, segments, count, tracer, eps, visible)
+    _group_sums(*lists, groups.scale, weight, np.ascontiguousarray(vpls.flux, np.float64), E)
+
+
+def _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
+    """(sample indices, VPL subset, flux scale, light tree) per worker task."""
     tasks = []
     # The hit samples of each subset, from one sort instead of a pass per subset.
     hits = np.flatnonzero(gb.hit)
@@ -221,15 +306,8 @@ def _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
         idx = hits[bounds[k]:bounds[k + 1]]
         if subset.count == 0 or len(idx) == 0:
             continue
-        tree = None
-        if lightcuts:
-            tree = subset_light_tree(vpls, subsets, k, subset)
-            step = lightcuts.points_per_task
-        else:
-            subset = subset.subset(facing_points(subset, gb.position[idx]))
-            if subset.count == 0:
-                continue
-            step = max(1, PAIRS_PER_TASK // subset.count)
+        tree = subset_light_tree(vpls, subsets, k, subset)
+        step = lightcuts.points_per_task
         tasks += [(idx[a:a + step], subset, scale, tree) for a in range(0, len(idx), step)]
     return tasks
 
@@ -243,25 +321,27 @@ def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
     E = np.zeros((len(gb.hit), 3))
     if vpls.count == 0 or not gb.hit.any():
         return E
-    tasks = _gather_tasks(gb, vpls, subset_of_sample, subsets, lightcuts)
     eps = frame.offset()
     stop = threading.Event()
     rays_per_point = np.zeros(len(gb.hit))
+    if lightcuts is None:
+        groups, tasks = grouped_tasks(gb, vpls, subset_of_sample, subsets)
+        rays_per_point = (groups.stop - groups.start)[subset_of_sample]
 
-    def run(task):
-        idx, subset, scale, tree = task
-        if stop.is_set():
-            return
-        P, N, G = gb.position[idx], gb.normal[idx], gb.geo_normal[idx]
-        if tree is None:
-            E[idx] = scale * vpl_irradiance_chunk(P, N, G, subset.position, subset.normal,
-                                                  subset.flux, min_distance ** 2,
-                                                  frame.tracer, eps, visible)
-            rays_per_point[idx] = subset.count
-        else:
+        def run(task):
+            if not stop.is_set():
+                group_irradiance(*task, subset_of_sample, groups, gb, vpls,
+                                 min_distance ** 2, frame.tracer, eps, E, visible)
+    else:
+        tasks = _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts)
+
+        def run(task):
+            idx, subset, scale, tree = task
+            if stop.is_set():
+                return
             E_cut, cut_size = lightcuts_module.lightcut_irradiance(
-                P, N, G, tree, lightcuts.error, lightcuts.max_cut, min_distance ** 2,
-                frame.tracer, eps)
+                gb.position[idx], gb.normal[idx], gb.geo_normal[idx], tree,
+                lightcuts.error, lightcuts.max_cut, min_distance ** 2, frame.tracer, eps)
             E[idx] = scale * E_cut
             rays_per_point[idx] = cut_size
 
