@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from . import light_tree, rays, sampling
+from . import light_sampling, light_tree, rays, sampling
 from . import lightcuts as lightcuts_module
 
 # Pixel-VPL pairs per gather task: bounds the float32 temporaries (~10 arrays of
@@ -18,9 +18,8 @@ PAIRS_PER_TASK = 1 << 18
 def light_sample_pattern(count, points, rng):
     """`count` 2D samples per point: a Hammersley set, toroidally shifted per point
     (Cranley-Patterson), so every point gets a stratified but different pattern."""
-    pattern = sampling.hammersley(count, 2)[:, None, :] + rng.random((points, 2))[None]
-    pattern -= np.floor(pattern)   # wrapped (np.remainder is slower)
-    return pattern
+    return light_sampling.shifted_pattern(sampling.hammersley(count, 2),
+                                          rng.random((points, 2)))
 
 
 def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
@@ -30,24 +29,29 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
     idx = np.flatnonzero(gb.hit)
     if len(idx) == 0:
         return E
-    P, N, G = gb.position[idx], gb.normal[idx], gb.geo_normal[idx]
+    P, N, G = _contiguous(gb.position[idx], gb.normal[idx], gb.geo_normal[idx])
     eps = frame.offset()
-    origins = P + G * eps
     if visible is None:
         visible = lambda o, d, t: ~frame.tracer.occluded(o, d, t)
     for emitter in frame.emitters:
+        if cancel and cancel():
+            return E
+        # Every light sample's segment first, then one shadow-ray batch per emitter.
         count = 1 if emitter.delta else light_samples
-        pattern = light_sample_pattern(count, len(idx), rng)
-        for u in pattern:
-            if cancel and cancel():
-                return E
+        rows = count * len(idx)
+        origin, segment, tfar = np.empty((rows, 3)), np.empty((rows, 3)), np.empty(rows)
+        point, energy = np.empty(rows, np.int64), np.empty((rows, 3))
+        rows = 0
+        for u in light_sample_pattern(count, len(idx), rng):
             direction, dist, e = emitter.incident(P, N, u)
-            # Light must arrive above the geometric surface too (no light through it).
-            ok = (e.max(1) > 0) & (np.einsum('ij,ij->i', direction, G) > 0)
-            sel = np.flatnonzero(ok)
-            tfar = dist[sel] * (1 - 1e-5) - 2 * eps
-            lit = sel[visible(origins[sel], direction[sel], tfar)]
-            E[idx[lit]] += e[lit] / count
+            start = rows
+            rows = light_sampling.shadow_segments(P, G, direction, dist, e, eps, origin,
+                                                  segment, tfar, point, start)
+            energy[start:rows] = e[point[start:rows]]
+        lit = visible(origin[:rows], segment[:rows], tfar[:rows])
+        for c in range(3):
+            E[idx, c] += np.bincount(point[:rows][lit], energy[:rows, c][lit],
+                                     len(idx)) / count
     return E
 
 

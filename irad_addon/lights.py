@@ -13,7 +13,7 @@ never the light: they do not emit, block or change the direct light.
 """
 import numpy as np
 
-from . import geometry, sampling
+from . import geometry, light_sampling, sampling
 from .scene_data import AreaLight, PointLight, Portal, SpotLight, SunLight
 
 INF_DISTANCE = np.float32(1e30)
@@ -184,10 +184,9 @@ class AreaEmitter:
         return position, normal, np.tile(self.power() / count, (count, 1))
 
     def incident(self, points, normals, u):
-        direction, dist = _unit(self._points(u) - points)
-        cos_l = np.maximum(-(direction @ self.normal), 0.0)
-        cos_x = np.maximum(_dot(normals, direction), 0.0)
-        g = cos_l * cos_x / np.maximum(dist * dist, 1e-30) * self.area
+        direction, dist, g = light_sampling.patch_incident(
+            points, normals, u, self.center, self.axis_u, self.axis_v, self.normal,
+            self.ellipse, self.area)
         return direction, dist, self.radiance * g[:, None]
 
 
