@@ -1,5 +1,6 @@
 """The deferred shading pass: irradiance at every G-buffer sample from the lights
 (shadow rays to light samples) and from the VPLs (one shadow ray per VPL)."""
+import hashlib
 import threading
 from concurrent.futures import as_completed
 from dataclasses import dataclass
@@ -100,27 +101,39 @@ def vpl_irradiance_chunk(P, N, G, vpl_position, vpl_normal, vpl_flux, min_distan
 
 
 def vpl_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps,
-                 visible=None):
+                 visible=None, flux_weight=None, budget=0.0, key=0):
     """float32 (points, VPLs): cos_x cos_y / max(d^2, dmin^2) V per pair, what each
     VPL's flux / pi becomes at each point (the flux-free part of the gather). One
     compiled pass (numba, without the GIL) makes every pair's term and the shadow
     segments of the pairs with a positive one; Embree then tests those segments.
-    `visible(origins, directions, tfar)` (world frame) replaces the plain test."""
+    `visible(origins, directions, tfar)` (world frame) replaces the plain test.
+    budget > 0: shadow-ray roulette (_group_terms) by the VPLs' `flux_weight`."""
     n, m = len(P), len(vpl_position)
     weight, segments = np.empty(n * m, np.float32), _segments(n * m)
-    count = _grid_terms(*_contiguous(P, N, G, vpl_position, vpl_normal), min_distance2, eps,
-                        tracer.center, weight, *segments)
+    # One group holding every VPL: pair p * m + v.
+    lists = (np.arange(n), np.zeros(n, np.int64), np.zeros(1, np.int64),
+             np.full(1, m, np.int64), np.arange(m))
+    flux_weight = np.zeros(m) if flux_weight is None else flux_weight
+    count = _group_terms(*lists, *_contiguous(P, N, G, vpl_position, vpl_normal),
+                         min_distance2, eps, tracer.center, weight, *segments,
+                         np.ascontiguousarray(flux_weight, np.float64), budget, key)
     _shadow_test(weight, segments, count, tracer, eps, visible)
     return weight.reshape(n, m)
 
 
-def sparse_transfer(points, lights, gb, vpls, min_distance2, tracer, eps):
+def sparse_transfer(points, lights, gb, vpls, min_distance2, tracer, eps, bounds=None,
+                    key=0):
     """float32 (n,): vpl_transfer's term for n (G-buffer sample, VPL) index pairs, for
-    sparse pair lists (transfer_reuse.py's new VPLs, a few per point)."""
+    sparse pair lists (transfer_reuse.py's new VPLs, a few per point). bounds: per
+    G-buffer sample, the contribution (term times the VPL's mean flux) below which a
+    pair's shadow ray is played by roulette (_group_terms); None: every ray."""
     weight, segments = np.empty(len(points), np.float32), _segments(len(points))
+    bounds = np.zeros(len(gb.hit)) if bounds is None else bounds
     count = _listed_terms(points, lights, *_contiguous(gb.position, gb.normal, gb.geo_normal,
                                                        vpls.position, vpls.normal),
-                          min_distance2, eps, tracer.center, weight, *segments)
+                          min_distance2, eps, tracer.center, weight, *segments,
+                          np.ascontiguousarray(vpls.flux.mean(1), np.float64),
+                          np.ascontiguousarray(bounds, np.float64), key)
     _shadow_test(weight, segments, count, tracer, eps)
     return weight
 
@@ -159,42 +172,84 @@ def _shadow_test(weight, segments, count, tracer, eps, visible=None):
 
 
 @njit(cache=True, nogil=True)
-def _grid_terms(P, N, G, Y, NY, min_distance2, eps, centre, weight, origin, direction,
-                distance, cos_vpl, pair):
-    """_pair_term for every (point, VPL): pair p * len(Y) + v."""
-    count = 0
-    for p in range(len(P)):
-        for v in range(len(Y)):
-            count = _pair_term(P, N, G, Y, NY, p, v, p * len(Y) + v, min_distance2, eps,
-                               centre, weight, origin, direction, distance, cos_vpl, pair,
-                               count)
-    return count
-
-
-@njit(cache=True, nogil=True)
 def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, weight, origin,
-                  direction, distance, cos_vpl, pair):
-    """_pair_term for the listed (point, VPL) pairs."""
+                  direction, distance, cos_vpl, pair, flux_weight, bounds, seed):
+    """_pair_term for the listed (point, VPL) pairs, with shadow-ray roulette below
+    bounds[point] (_group_terms)."""
     count = 0
     for i in range(len(points)):
-        count = _pair_term(P, N, G, Y, NY, points[i], lights[i], i, min_distance2, eps,
-                           centre, weight, origin, direction, distance, cos_vpl, pair, count)
+        s, v = points[i], lights[i]
+        w, dist2, cos_y = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
+        w = _roulette(w, w * flux_weight[v], bounds[s], s, v, seed)
+        weight[i] = w
+        if w > 0:
+            count = _segment(P, G, Y, s, v, i, dist2, cos_y, eps, centre, origin,
+                             direction, distance, cos_vpl, pair, count)
     return count
 
 
 @njit(cache=True, nogil=True)
 def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
                  min_distance2, eps, centre, weight, origin, direction, distance, cos_vpl,
-                 pair):
-    """_pair_term for every sample and each VPL of its group, pair by pair."""
+                 pair, flux_weight, budget, seed):
+    """_pair_term for every sample and each VPL of its group, pair by pair, with
+    shadow-ray roulette (Arvo & Kirk 1990's Russian roulette on shadow rays, as Ward
+    1991 skips the tests of weak lights): a pair whose unoccluded contribution c is
+    below S / budget (S: the sample's sum) keeps its ray with probability
+    c budget / S and is weighted by the inverse. Unbiased; at most `budget` rays per
+    sample in expectation, and the added variance is below S^2 / budget. S is the
+    previous sample's of the same group (a neighbouring pixel), the first one's own."""
     i = count = 0
+    group, bound = -1, 0.0
     for s in samples:
         k = group_of_sample[s]
+        if budget > 0 and k != group:
+            bound = _contribution(P, N, G, Y, NY, s, order[start[k]:stop[k]],
+                                  min_distance2, flux_weight) / budget
+        group = k
+        total = 0.0
         for j in range(start[k], stop[k]):
-            count = _pair_term(P, N, G, Y, NY, s, order[j], i, min_distance2, eps, centre,
-                               weight, origin, direction, distance, cos_vpl, pair, count)
+            v = order[j]
+            w, dist2, cos_y = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
+            total += w * flux_weight[v]
+            w = _roulette(w, w * flux_weight[v], bound, s, v, seed)
+            weight[i] = w
+            if w > 0:
+                count = _segment(P, G, Y, s, v, i, dist2, cos_y, eps, centre, origin,
+                                 direction, distance, cos_vpl, pair, count)
             i += 1
+        bound = total / budget if budget > 0 else 0.0
     return count
+
+
+@njit(cache=True, inline='always')
+def _roulette(w, contribution, bound, s, v, seed):
+    """A pair's weight after shadow-ray roulette: kept with probability contribution /
+    bound (below the bound) and then divided by it, else 0."""
+    if w <= 0 or contribution >= bound:
+        return w
+    keep = contribution / bound
+    return w / keep if _uniform(s, v, seed) < keep else 0.0
+
+
+@njit(cache=True, inline='always')
+def _contribution(P, N, G, Y, NY, s, vpls, min_distance2, flux_weight):
+    """Sum of the unoccluded contributions of `vpls` at sample s."""
+    total = 0.0
+    for v in vpls:
+        w, _, _ = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
+        total += w * flux_weight[v]
+    return total
+
+
+@njit(cache=True, inline='always')
+def _uniform(a, b, seed):
+    """A uniform number in [0, 1) hashed from two indices and a seed (splitmix64)."""
+    z = np.uint64(a) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(b) + np.uint64(seed)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 @njit(cache=True, nogil=True)
@@ -218,19 +273,36 @@ def _group_sums(samples, group_of_sample, start, stop, order, scale, weight, flu
 @njit(cache=True, inline='always')
 def _pair_term(P, N, G, Y, NY, p, v, i, min_distance2, eps, centre, weight, origin,
                direction, distance, cos_vpl, pair, count):
-    """weight[i]: point p's term from VPL v before visibility, cos_x cos_y / d^2 /
-    max(d^2, dmin^2) with unnormalised cosines (Keller 1997, eq. 5, the VPL's cosine
-    lobe); a positive one also gets shadow segment `count`, from p lifted off its
-    surface by eps, in the tracer's frame (relative to `centre`). Returns the count."""
+    """weight[i]: _pair_weight of point p and VPL v; a positive one also gets shadow
+    segment `count` (_segment). Returns the next free segment."""
+    w, dist2, cos_y = _pair_weight(P, N, G, Y, NY, p, v, min_distance2)
+    weight[i] = w
+    if w <= 0:
+        return count
+    return _segment(P, G, Y, p, v, i, dist2, cos_y, eps, centre, origin, direction,
+                    distance, cos_vpl, pair, count)
+
+
+@njit(cache=True, inline='always')
+def _pair_weight(P, N, G, Y, NY, p, v, min_distance2):
+    """(weight, d^2, cos_y): point p's term from VPL v before visibility,
+    cos_x cos_y / d^2 / max(d^2, dmin^2) with unnormalised cosines (Keller 1997, eq. 5,
+    the VPL's cosine lobe); 0 where either faces away or v is below p's surface."""
     dx, dy, dz = Y[v, 0] - P[p, 0], Y[v, 1] - P[p, 1], Y[v, 2] - P[p, 2]
     dist2 = max(dx * dx + dy * dy + dz * dz, 1e-30)
     cos_x = N[p, 0] * dx + N[p, 1] * dy + N[p, 2] * dz
     cos_y = -(NY[v, 0] * dx + NY[v, 1] * dy + NY[v, 2] * dz)
     above = G[p, 0] * dx + G[p, 1] * dy + G[p, 2] * dz
     if cos_x <= 0 or cos_y <= 0 or above <= 0:
-        weight[i] = 0
-        return count
-    weight[i] = cos_x * cos_y / dist2 / max(dist2, min_distance2)
+        return 0.0, dist2, cos_y
+    return cos_x * cos_y / dist2 / max(dist2, min_distance2), dist2, cos_y
+
+
+@njit(cache=True, inline='always')
+def _segment(P, G, Y, p, v, i, dist2, cos_y, eps, centre, origin, direction, distance,
+             cos_vpl, pair, count):
+    """Shadow segment `count` of pair i, from p lifted off its surface by eps to VPL v,
+    in the tracer's frame (relative to `centre`). Returns count + 1."""
     for c in range(3):
         start = np.float32(P[p, c] + G[p, c] * eps - centre[c])
         origin[count, c] = start
@@ -288,15 +360,25 @@ def grouped_tasks(gb, vpls, subset_of_sample, subsets):
 
 
 def group_irradiance(samples, pairs, subset_of_sample, groups, gb, vpls, min_distance2,
-                     tracer, eps, E, visible=None):
+                     tracer, eps, E, visible=None, budget=0.0, key=0):
     """E[samples] from the VPLs of each sample's interleaved group (`pairs` in all):
-    vpl_irradiance_chunk's sum, over pairs listed group by group."""
+    vpl_irradiance_chunk's sum, over pairs listed group by group, with shadow-ray
+    roulette to about `budget` rays per sample (_group_terms; `key` seeds its hash).
+    Returns the shadow rays traced."""
     weight, segments = np.empty(pairs, np.float32), _segments(pairs)
     arrays = _contiguous(gb.position, gb.normal, gb.geo_normal, vpls.position, vpls.normal)
     lists = (samples, subset_of_sample, groups.start, groups.stop, groups.order)
-    count = _group_terms(*lists, *arrays, min_distance2, eps, tracer.center, weight, *segments)
+    count = _group_terms(*lists, *arrays, min_distance2, eps, tracer.center, weight, *segments,
+                         np.ascontiguousarray(vpls.flux.mean(1), np.float64), budget, key)
     _shadow_test(weight, segments, count, tracer, eps, visible)
     _group_sums(*lists, groups.scale, weight, np.ascontiguousarray(vpls.flux, np.float64), E)
+    return count
+
+
+def hash_seed(seed):
+    """A 63-bit key for _uniform from an int or a tuple of ints."""
+    return int.from_bytes(hashlib.blake2b(repr(seed).encode(), digest_size=8).digest(),
+                          'little') >> 1
 
 
 def _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
@@ -317,11 +399,14 @@ def _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts):
 
 
 def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets,
-                        cancel=None, progress=None, lightcuts=None, stats=None, visible=None):
+                        cancel=None, progress=None, lightcuts=None, stats=None,
+                        shadow_ray_budget=0.0, seed=0, visible=None):
     """Irradiance (S, 3) from the VPLs. Sample i gathers only the interleaved subset
     subset_of_sample[i] of `subsets` (Keller & Heidrich 2001), its flux scaled up;
     with `lightcuts` (a Lightcuts) each point gathers a cut of a light tree instead of
-    every VPL. `stats` (a dict) receives the shadow rays per point."""
+    every VPL. `shadow_ray_budget` > 0: shadow-ray roulette (_group_terms), its random
+    numbers hashed from `seed` (ints). `stats` (a dict) receives the shadow rays per
+    point."""
     E = np.zeros((len(gb.hit), 3))
     if vpls.count == 0 or not gb.hit.any():
         return E
@@ -330,12 +415,13 @@ def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
     rays_per_point = np.zeros(len(gb.hit))
     if lightcuts is None:
         groups, tasks = grouped_tasks(gb, vpls, subset_of_sample, subsets)
-        rays_per_point = (groups.stop - groups.start)[subset_of_sample]
+        traced, key = [], hash_seed(seed)
 
         def run(task):
             if not stop.is_set():
-                group_irradiance(*task, subset_of_sample, groups, gb, vpls,
-                                 min_distance ** 2, frame.tracer, eps, E, visible)
+                traced.append(group_irradiance(*task, subset_of_sample, groups, gb, vpls,
+                                               min_distance ** 2, frame.tracer, eps, E,
+                                               visible, shadow_ray_budget, key))
     else:
         tasks = _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts)
 
@@ -358,5 +444,6 @@ def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
         if progress:
             progress(done / len(futures))
     if stats is not None:
-        stats["shadow_rays_per_point"] = float(rays_per_point[gb.hit].mean())
+        stats["shadow_rays_per_point"] = (float(rays_per_point[gb.hit].mean()) if lightcuts
+                                          else sum(traced) / np.count_nonzero(gb.hit))
     return E

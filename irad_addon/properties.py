@@ -45,6 +45,15 @@ class IRadSettings(bpy.types.PropertyGroup):
         name="Bias Compensation", default=_DEFAULT.bias_compensation,
         description="Restore the light that clamping removes near VPLs, with one extra ray "
                     "per pixel sample (Kollig & Keller 2004)")
+    shadow_ray_budget: FloatProperty(
+        name="Shadow Ray Budget", default=_DEFAULT.shadow_ray_budget, min=0.0, soft_min=16.0,
+        soft_max=4096.0, max=1e6,
+        description="About the most shadow rays a pixel sample traces to VPLs, over all "
+                    "interleaved groups (each sample gathers one of Interleave x Interleave "
+                    "groups and gets that share). A VPL that brings less than its share's "
+                    "fraction of the unoccluded light keeps its ray with probability in "
+                    "proportion, weighted by the inverse: no bias, a little noise. "
+                    "0 traces every VPL's ray")
     use_lightcuts: BoolProperty(
         name="Lightcuts", default=_DEFAULT.use_lightcuts,
         description="Gather a cut of a light tree per pixel instead of every VPL (Walter et "

@@ -19,6 +19,8 @@ class RenderSettings:
     coverage_samples: int = 16   # camera rays per pixel for edges (antialiasing.py)
     interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
     bias_compensation: bool = True   # restore the energy clamping removes (Kollig & Keller)
+    shadow_ray_budget: float = 256.0  # shadow-ray roulette: ~most rays per pixel sample,
+                                      # over all k x k interleaved groups
     use_lightcuts: bool = False  # gather a light-tree cut per point instead of every VPL
     lightcut_error: float = 0.02
     max_cut: int = 1000
@@ -216,17 +218,21 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     t = time.perf_counter()
     subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
     subsets = interleaving.subset_count(k, gb.samples)
+    # Each sample gathers one of k x k groups: its share of the budget. The filter
+    # averages (2k)^2 of them, so the roulette's noise in the image does not depend on k.
+    budget = settings.shadow_ray_budget / k ** 2
     gather_stats = {}
     if kept is not None:
         report(0.2, f"Gathering {vpls.count} VPLs, new ones only")
         E_indirect, gather_stats["shadow_rays_per_point"] = \
-            transfer_reuse.reused_indirect_irradiance(frame, gb, vpls, transfer[1], dmin,
-                                                      subset_of_sample, subsets, kept, check)
+            transfer_reuse.reused_indirect_irradiance(
+                frame, gb, vpls, transfer[1], dmin, subset_of_sample, subsets, kept, check,
+                budget, gather.hash_seed((settings.seed, rows[0])))
     else:
         E_indirect = gather.indirect_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, check,
             lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"), lightcuts,
-            gather_stats)
+            gather_stats, budget, seed=(settings.seed, rows[0]))
     tally.count("shadow_rays_per_point", gather_stats.get("shadow_rays_per_point", 0.0))
     tally.add("indirect", t)
     if frame.mirror is not None:   # skipped entirely for scenes without mirrors

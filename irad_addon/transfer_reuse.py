@@ -55,6 +55,9 @@ class BandTransfer:
     groups: dict = field(default_factory=dict)
     coverage: object = None
     still: dict = None
+    # (S,): each sample's last VPL light, sum of transfer x mean flux: the bound of
+    # the shadow-ray roulette of its new VPLs (gather.sparse_transfer)
+    totals: np.ndarray = None
 
 
 class TransferCache:
@@ -89,10 +92,12 @@ def fits(samples, vpls, subsets):
 
 
 def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sample, subsets,
-                               band, cancel=None):
+                               band, cancel=None, budget=0.0, key=0):
     """Irradiance (S, 3) from the VPLs like gather.indirect_irradiance, with the kept
     VPLs' transfer from `band` (a BandTransfer, updated in place) and new columns traced
-    only for the VPLs not seen before. Returns E and the new VPLs gathered per point."""
+    only for the VPLs not seen before, with the shadow-ray roulette of `budget` (its
+    decisions are kept with the columns: unbiased in every frame). Returns E and the
+    new VPLs gathered per point."""
     E = np.zeros((len(gb.hit), 3))
     hits = np.flatnonzero(gb.hit)
     if vpls.count == 0 or len(hits) == 0:
@@ -115,13 +120,16 @@ def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sam
         new = mine[~kept]
         point.append(np.repeat(idx, len(new)))   # the group's (sample, new VPL) pairs
         light.append(np.tile(new, len(idx)))
+    bounds = (band.totals / budget if budget > 0 and band.totals is not None else None)
     traced = _trace(frame, gb, vpls, dense, np.concatenate(point) if point else [],
-                    np.concatenate(light) if light else [], min_distance, cancel)
+                    np.concatenate(light) if light else [], min_distance, cancel, bounds,
+                    budget, key)
     if traced is None:
         return E, 0.0
     blocks, new_transfer = traced
 
     groups, new_per_point, start = {}, np.zeros(len(gb.hit)), 0
+    band.totals, flux_weight = np.zeros(len(gb.hit)), vpls.flux.mean(1).astype(np.float32)
     for k, idx, mine, kept, columns in plans:
         if k in blocks:
             transfer = blocks[k]
@@ -134,28 +142,30 @@ def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sam
             start += fresh
         scale = vpls.count / len(mine) if len(mine) else 0.0
         E[idx] = scale * (transfer @ vpls.flux[mine].astype(np.float32)) / np.pi
+        band.totals[idx] = transfer @ flux_weight[mine]
         new_per_point[idx] = (~kept).sum()
         groups[k] = GroupTransfer(ids[mine], vpls.position[mine], vpls.normal[mine], transfer)
     band.groups = groups
     return E, float(new_per_point[gb.hit].mean())
 
 
-def _trace(frame, gb, vpls, dense, point, light, min_distance, cancel):
+def _trace(frame, gb, vpls, dense, point, light, min_distance, cancel, bounds, budget, key):
     """The new transfer, traced over the thread pool: {group: (samples, VPLs) block}
-    for the `dense` groups (group, samples, VPLs), gather.vpl_transfer in chunks, and
-    gather.sparse_transfer of the (sample, VPL) pairs `point`, `light`. None when
-    cancelled."""
+    for the `dense` groups (group, samples, VPLs), gather.vpl_transfer in chunks with
+    the roulette of `budget`, and gather.sparse_transfer of the (sample, VPL) pairs
+    `point`, `light` with the roulette `bounds`. None when cancelled."""
     eps = frame.offset()
     d2 = min_distance ** 2
 
     def block(k, idx, mine):
         return k, gather.vpl_transfer(gb.position[idx], gb.normal[idx], gb.geo_normal[idx],
                                       vpls.position[mine], vpls.normal[mine], d2,
-                                      frame.tracer, eps)
+                                      frame.tracer, eps, None, vpls.flux[mine].mean(1),
+                                      budget, key)
 
     def pairs(a, b):
         return None, gather.sparse_transfer(point[a:b], light[a:b], gb, vpls, d2,
-                                            frame.tracer, eps)
+                                            frame.tracer, eps, bounds, key)
 
     tasks = []
     for k, idx, mine in dense:

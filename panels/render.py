@@ -33,6 +33,7 @@ class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
 class RENDER_PT_irad_indirect(IRadRenderPanel, bpy.types.Panel):
     bl_label = "Global Illumination"
     properties = ("variant", "particles", "max_bounces", "clamp", "bias_compensation",
+                  "shadow_ray_budget",
                   "temporal_reuse")
 
 
