@@ -8,6 +8,8 @@ centre, so every pixel sees all subsets where the surface is smooth and edges st
 import numpy as np
 from numba import njit
 
+from . import rays
+
 # Continuity thresholds of the discontinuity buffer: relative depth and normal cosine.
 DEPTH_TOLERANCE = 0.05
 NORMAL_COSINE = 0.9
@@ -53,18 +55,22 @@ def discontinuity_filter(irradiance, depth, normal, hit, k):
         return np.ascontiguousarray(a, dtype).reshape((-1, h, w, *channels))
 
     out = np.empty(irradiance.shape)
-    _filter(layers(irradiance, np.float64, 3), layers(depth, np.float64),
-            layers(normal, np.float64, 3), layers(hit, bool),
-            np.array(window_offsets(k), np.int64), DEPTH_TOLERANCE, NORMAL_COSINE,
-            out.reshape((-1, h, w, 3)))
+    inputs = (layers(irradiance, np.float64, 3), layers(depth, np.float64),
+              layers(normal, np.float64, 3), layers(hit, bool),
+              np.array(window_offsets(k), np.int64), DEPTH_TOLERANCE, NORMAL_COSINE,
+              out.reshape((-1, h, w, 3)))
+    # Bands of rows on the thread pool: the kernel runs without the GIL.
+    rays.parallel_map(lambda first, stop: _filter(*inputs, first, stop),
+                      rays.split_ranges(h, rays.worker_count(), minimum=16))
     return out
 
 
 @njit(cache=True, nogil=True)
-def _filter(E, depth, normal, hit, offsets, depth_tolerance, normal_cosine, out):
+def _filter(E, depth, normal, hit, offsets, depth_tolerance, normal_cosine, out, first, stop):
+    """out for rows first .. stop - 1 of every layer."""
     layers, h, w = depth.shape
     for layer in range(layers):
-        for y in range(h):
+        for y in range(first, stop):
             for x in range(w):
                 red = green = blue = 0.0   # scalars: row slices would allocate views
                 count = 0
