@@ -42,13 +42,18 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
         rows = count * len(idx)
         origin, segment, tfar = np.empty((rows, 3)), np.empty((rows, 3)), np.empty(rows)
         point, energy = np.empty(rows, np.int64), np.empty((rows, 3))
-        rows = 0
-        for u in light_sample_pattern(count, len(idx), rng):
-            direction, dist, e = emitter.incident(P, N, u)
-            start = rows
-            rows = light_sampling.shadow_segments(P, G, direction, dist, e, eps, origin,
-                                                  segment, tfar, point, start)
-            energy[start:rows] = e[point[start:rows]]
+        pattern = light_sample_pattern(count, len(idx), rng)
+        if hasattr(emitter, "shadow_segments"):   # a compiled pass for the whole pattern
+            rows = emitter.shadow_segments(P, N, G, pattern, eps, origin, segment, tfar, point,
+                                           energy)
+        else:
+            rows = 0
+            for u in pattern:
+                direction, dist, e = emitter.incident(P, N, u)
+                start = rows
+                rows = light_sampling.shadow_segments(P, G, direction, dist, e, eps, origin,
+                                                      segment, tfar, point, start)
+                energy[start:rows] = e[point[start:rows]]
         lit = visible(origin[:rows], segment[:rows], tfar[:rows])
         for c in range(3):
             E[idx, c] += np.bincount(point[:rows][lit], energy[:rows, c][lit],

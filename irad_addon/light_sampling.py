@@ -25,27 +25,71 @@ def patch_incident(points, normals, u, center, axis_u, axis_v, light_normal, ell
 def _patch_incident(points, normals, u, center, axis_u, axis_v, light_normal, ellipse, area,
                     direction, distance, factor):
     for i in range(len(points)):
-        a, b = 2.0 * u[i, 0] - 1.0, 2.0 * u[i, 1] - 1.0
-        if ellipse:   # concentric map onto the disk (sampling.square_to_disk)
-            if abs(a) > abs(b):
-                r, phi = a, (np.pi / 4) * (b / a)
-            else:
-                r, phi = b, np.pi / 2 - (np.pi / 4) * (a / (b if b != 0 else 1.0))
-            a, b = r * np.cos(phi), r * np.sin(phi)
-        dist2 = 0.0
-        for c in range(3):
-            d = center[c] + a * axis_u[c] + b * axis_v[c] - points[i, c]
-            direction[i, c] = d
-            dist2 += d * d
-        dist = np.sqrt(dist2)
-        scale = 1.0 / dist if dist > 0 else 1.0
-        cos_l = cos_x = 0.0
-        for c in range(3):
-            direction[i, c] *= scale
-            cos_l -= direction[i, c] * light_normal[c]
-            cos_x += direction[i, c] * normals[i, c]
-        distance[i] = dist
-        factor[i] = max(cos_l, 0.0) * max(cos_x, 0.0) / max(dist2, 1e-30) * area
+        distance[i], factor[i] = _patch_sample(points, normals, i, u[i, 0], u[i, 1], center,
+                                               axis_u, axis_v, light_normal, ellipse, area,
+                                               direction, i)
+
+
+@njit(cache=True, inline='always')
+def _patch_sample(points, normals, i, u0, u1, center, axis_u, axis_v, light_normal, ellipse,
+                  area, direction, row):
+    """One uniform sample of the patch seen from points[i]: its unit direction into
+    direction[row]; returns (distance, cos_l cos_x A / d^2)."""
+    a, b = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
+    if ellipse:   # concentric map onto the disk (sampling.square_to_disk)
+        if abs(a) > abs(b):
+            r, phi = a, (np.pi / 4) * (b / a)
+        else:
+            r, phi = b, np.pi / 2 - (np.pi / 4) * (a / (b if b != 0 else 1.0))
+        a, b = r * np.cos(phi), r * np.sin(phi)
+    dist2 = 0.0
+    for c in range(3):
+        d = center[c] + a * axis_u[c] + b * axis_v[c] - points[i, c]
+        direction[row, c] = d
+        dist2 += d * d
+    dist = np.sqrt(dist2)
+    scale = 1.0 / dist if dist > 0 else 1.0
+    cos_l = cos_x = 0.0
+    for c in range(3):
+        direction[row, c] *= scale
+        cos_l -= direction[row, c] * light_normal[c]
+        cos_x += direction[row, c] * normals[i, c]
+    return dist, max(cos_l, 0.0) * max(cos_x, 0.0) / max(dist2, 1e-30) * area
+
+
+def patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, ellipse, area,
+                   radiance, eps, origin, segment, tfar, point, energy):
+    """shadow_segments of every sample of `pattern` (count, n, 2) on a patch light at
+    once (patch_incident's samples, without the intermediate arrays). Returns the rows."""
+    return _patch_segments(P, N, G, np.ascontiguousarray(pattern, np.float64),
+                           np.asarray(center, np.float64), np.asarray(axis_u, np.float64),
+                           np.asarray(axis_v, np.float64),
+                           np.asarray(light_normal, np.float64), bool(ellipse), float(area),
+                           np.asarray(radiance, np.float64), eps, origin, segment, tfar,
+                           point, energy)
+
+
+@njit(cache=True, nogil=True)
+def _patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, ellipse, area,
+                    radiance, eps, origin, segment, tfar, point, energy):
+    count = 0
+    for k in range(pattern.shape[0]):
+        for i in range(len(P)):
+            dist, factor = _patch_sample(P, N, i, pattern[k, i, 0], pattern[k, i, 1], center,
+                                         axis_u, axis_v, light_normal, ellipse, area,
+                                         segment, count)
+            if factor <= 0 or max(radiance[0], radiance[1], radiance[2]) <= 0:
+                continue
+            if (segment[count, 0] * G[i, 0] + segment[count, 1] * G[i, 1]
+                    + segment[count, 2] * G[i, 2]) <= 0:   # no light through the surface
+                continue
+            for c in range(3):
+                origin[count, c] = P[i, c] + G[i, c] * eps
+                energy[count, c] = radiance[c] * factor
+            tfar[count] = dist * (1 - 1e-5) - 2 * eps
+            point[count] = i
+            count += 1
+    return count
 
 
 @njit(cache=True, nogil=True)

@@ -5,6 +5,8 @@ Each emitter answers three questions, vectorised over samples:
   emit(u)                        particle origins, directions and flux (Keller 1997, sec. 2)
   incident(points, normals, u)   shadow-ray directions, distances and the irradiance
                                  each sample contributes (receiver cosine included)
+Area lights also build direct light's shadow segments for all their samples in one
+compiled pass (shadow_segments), the same estimator as incident.
 
 Sun and world particles enter the scene through its light portals when it has any
 (Cycles' portals: area lights with is_portal, e.g. in windows), otherwise through a
@@ -182,6 +184,12 @@ class AreaEmitter:
         position = self._points(sampling.hammersley(count, 2))
         normal = np.tile(self.normal, (count, 1))
         return position, normal, np.tile(self.power() / count, (count, 1))
+
+    def shadow_segments(self, P, N, G, pattern, eps, *out):
+        """gather.direct_irradiance's segments of every sample at once (compiled)."""
+        return light_sampling.patch_segments(P, N, G, pattern, self.center, self.axis_u,
+                                             self.axis_v, self.normal, self.ellipse,
+                                             self.area, self.radiance, eps, *out)
 
     def incident(self, points, normals, u):
         direction, dist, g = light_sampling.patch_incident(

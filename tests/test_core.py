@@ -154,3 +154,33 @@ def test_every_particle_sequence_converges_in_the_furnace(core, sequence):
     image = render(core, data, particles=32768, max_bounces=200, clamp=0.0, aa_samples=1,
                    interleave=1, light_samples=64, sequence=sequence).passes["Combined"]
     assert image[..., :3].mean() == pytest.approx(2.0, rel=0.01)
+
+
+@pytest.mark.parametrize("shape", ["RECTANGLE", "ELLIPSE"])
+def test_compiled_area_light_segments_are_the_emitters_estimator(core, shape):
+    # gather.direct_irradiance takes an area light's shadow segments from one compiled
+    # pass; they must be what incident() gives, sample by sample.
+    rng = np.random.default_rng(4)
+    light = core.lights.AreaEmitter(core.scene_data.AreaLight(
+        np.array([0.1, 0.2, 1.0]), np.array([0.4, 0.1, 0.0]), np.array([-0.05, 0.2, 0.0]),
+        np.array([0.0, 0.0, -1.0]), np.array([1.0, 0.8, 0.6]), 50.0, shape))
+    P = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.5]
+    N = rng.normal(size=(200, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    G = N + rng.normal(size=(200, 3))   # some light comes through the surface: refused
+    G /= np.linalg.norm(G, axis=1, keepdims=True)
+    pattern = rng.random((3, 200, 2))
+    fused = [np.empty((600, 3)), np.empty((600, 3)), np.empty(600), np.empty(600, np.int64),
+             np.empty((600, 3))]
+    rows = light.shadow_segments(P, N, G, pattern, 1e-4, *fused)
+    reference = [np.empty((600, 3)), np.empty((600, 3)), np.empty(600), np.empty(600, np.int64)]
+    energy, start = np.empty((600, 3)), 0
+    for u in pattern:
+        direction, dist, e = light.incident(P, N, u)
+        end = core.light_sampling.shadow_segments(P, G, direction, dist, e, 1e-4, *reference,
+                                                  start)
+        energy[start:end] = e[reference[3][start:end]]
+        start = end
+    assert rows == start and rows > 50
+    for a, b in zip(fused, reference + [energy]):
+        np.testing.assert_allclose(a[:rows], b[:rows], rtol=1e-12, atol=1e-12)
