@@ -73,23 +73,37 @@ def patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, ellip
 def _patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, ellipse, area,
                     radiance, eps, origin, segment, tfar, point, energy):
     count = 0
+    if max(radiance[0], radiance[1], radiance[2]) <= 0:
+        return count
     for k in range(pattern.shape[0]):
         for i in range(len(P)):
             dist, factor = _patch_sample(P, N, i, pattern[k, i, 0], pattern[k, i, 1], center,
                                          axis_u, axis_v, light_normal, ellipse, area,
                                          segment, count)
-            if factor <= 0 or max(radiance[0], radiance[1], radiance[2]) <= 0:
-                continue
-            if (segment[count, 0] * G[i, 0] + segment[count, 1] * G[i, 1]
-                    + segment[count, 2] * G[i, 2]) <= 0:   # no light through the surface
-                continue
-            for c in range(3):
-                origin[count, c] = P[i, c] + G[i, c] * eps
-                energy[count, c] = radiance[c] * factor
-            tfar[count] = dist * (1 - 1e-5) - 2 * eps
-            point[count] = i
-            count += 1
+            if factor > 0 and _above(segment, count, G, i):
+                for c in range(3):
+                    energy[count, c] = radiance[c] * factor
+                count = _lift(P, G, i, dist, eps, origin, tfar, point, count)
     return count
+
+
+@njit(cache=True, inline='always')
+def _above(direction, row, G, i):
+    """Whether direction[row] leaves above point i's geometric surface (no light comes
+    through a surface)."""
+    return (direction[row, 0] * G[i, 0] + direction[row, 1] * G[i, 1]
+            + direction[row, 2] * G[i, 2]) > 0
+
+
+@njit(cache=True, inline='always')
+def _lift(P, G, i, distance, eps, origin, tfar, which, row):
+    """Segment row `row` starts at point i lifted by eps along G and ends 2 eps short of
+    the light; `which` records the point. Returns row + 1."""
+    for c in range(3):
+        origin[row, c] = P[i, c] + G[i, c] * eps
+    tfar[row] = distance * (1 - 1e-5) - 2 * eps
+    which[row] = i
+    return row + 1
 
 
 @njit(cache=True, nogil=True)
@@ -100,17 +114,10 @@ def shadow_segments(P, G, direction, distance, e, eps, origin, segment, tfar, wh
     the sample's row. Returns the next free row."""
     count = start
     for i in range(len(P)):
-        if max(e[i, 0], e[i, 1], e[i, 2]) <= 0:
-            continue
-        if (direction[i, 0] * G[i, 0] + direction[i, 1] * G[i, 1]
-                + direction[i, 2] * G[i, 2]) <= 0:   # no light through the surface
-            continue
-        for c in range(3):
-            origin[count, c] = P[i, c] + G[i, c] * eps
-            segment[count, c] = direction[i, c]
-        tfar[count] = distance[i] * (1 - 1e-5) - 2 * eps
-        which[count] = i
-        count += 1
+        if max(e[i, 0], e[i, 1], e[i, 2]) > 0 and _above(direction, i, G, i):
+            for c in range(3):
+                segment[count, c] = direction[i, c]
+            count = _lift(P, G, i, distance[i], eps, origin, tfar, which, count)
     return count
 
 
