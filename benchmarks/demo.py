@@ -49,7 +49,7 @@ def render_ours(addon):
     reference._neutral_colour(scene)  # same film / colour settings as the Cycles renders
     settings = {name: getattr(scene.irad, name) for name in
                 ("variant", "particles", "max_bounces", "clamp", "aa_samples", "coverage_samples",
-                 "light_samples", "seed")}
+                 "light_samples", "shadow_ray_budget", "seed")}
     # The engine shows its stats (VPL count) only in the render window; record them
     # by wrapping the core's render_frame, which engine.py calls as render.render_frame.
     core = addon.irad_addon.render
