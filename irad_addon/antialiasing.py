@@ -126,17 +126,17 @@ def surface_class(gb):
     return (base + 3 * bright + 6 * mirrored).astype(np.int8)
 
 
-def edge_pixels(gb):
+def edge_pixels(gb, uniform):
     """bool (pixels,): pixels an edge may cross, where coverage rays are traced: their
-    shading samples differ (in class, object or surface), or the first one differs
-    from a neighbour's first (8 neighbours: an edge that misses every shading sample
-    of a pixel shows between the pixel and the one across it)."""
+    shading samples differ (in class, object or surface: `uniform`, uniform_pixels),
+    or the first one differs from a neighbour's first (8 neighbours: an edge that misses
+    every shading sample of a pixel shows between the pixel and the one across it)."""
     count = gb.width * gb.height
     kind = surface_class(gb).reshape(gb.samples, count)
     obj = gb.object_index.reshape(gb.samples, count)
     surface = (kind % 3) == 2
     edge = ((kind != kind[0]) | (obj != obj[0])).any(0)
-    edge |= surface[0] & ~uniform_pixels(gb)
+    edge |= surface[0] & ~uniform
     y, x = np.divmod(np.arange(count), gb.width)
     for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):   # each pair of neighbours once
         inside = (y + dy < gb.height) & (x + dx >= 0) & (x + dx < gb.width)
@@ -155,7 +155,8 @@ def film_gbuffer(frame, cam, gb, samples, rng, rows):
     shading samples' irradiance to them: `samples` coverage rays in each edge pixel,
     the shading samples themselves in every other pixel (most of them: one surface,
     nothing to resolve)."""
-    edge = edge_pixels(gb)
+    uniform = uniform_pixels(gb)
+    edge = edge_pixels(gb, uniform)
     cov = build_gbuffer(frame, cam, samples, rng, rows, smooth_normals=False,
                         pixels=np.flatnonzero(edge))
     own = np.flatnonzero(~edge[gb.pixel])
@@ -166,7 +167,7 @@ def film_gbuffer(frame, cam, gb, samples, rng, rows):
             joined[f.name] = np.concatenate([a[own], b])
     film = GBuffer(gb.width, gb.height, gb.row_start, samples, **joined)
     film.counts = np.bincount(film.pixel, minlength=gb.width * gb.height)
-    return film, coverage_map(film, gb, own)
+    return film, coverage_map(film, gb, own, uniform)
 
 
 @dataclass
@@ -193,18 +194,17 @@ class CoverageMap:
         return out
 
 
-def coverage_map(cov, gb, own=None):
-    """The CoverageMap of samples `cov` over the shading samples `gb`, the first of them
-    the shading samples `own` (a film_gbuffer). The others take the mean over the
-    shading samples on the same surface in their own pixel, else in the neighbouring
-    pixels; a sub-pixel sliver no shading sample lies on takes the nearest one facing
-    the same way; misses and holdouts get zero."""
-    own = np.zeros(0, np.int64) if own is None else own
+def coverage_map(cov, gb, own, uniform):
+    """The CoverageMap of samples `cov` over the shading samples `gb` (`uniform`: its
+    uniform_pixels), the first of them the shading samples `own` (a film_gbuffer).
+    The others take the mean over the shading samples on the same surface in their own
+    pixel, else in the neighbouring pixels; a sub-pixel sliver no shading sample lies
+    on takes the nearest one facing the same way; misses and holdouts get zero."""
     todo = len(own) + np.flatnonzero((cov.hit & ~cov.holdout)[len(own):])
     # Fast path: a pixel whose shading samples share one surface, and coverage samples
     # on that surface (the first shading sample stands for it).
     pixel = cov.pixel[todo]
-    quick = uniform_pixels(gb)[pixel]
+    quick = uniform[pixel]
     quick[quick] = same_surface(cov, todo[quick], gb, pixel[quick])
     result = CoverageMap(len(cov.hit), gb.samples, own, todo[quick], pixel[quick], [])
     todo = todo[~quick]

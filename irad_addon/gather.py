@@ -179,8 +179,8 @@ def _shadow_test(weight, segments, count, tracer, eps, visible=None):
 @njit(cache=True, nogil=True)
 def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, weight, origin,
                   direction, distance, cos_vpl, pair, flux_weight, bounds, seed):
-    """_pair_term for the listed (point, VPL) pairs, with shadow-ray roulette below
-    bounds[point] (_group_terms)."""
+    """_pair_weight and _segment for the listed (point, VPL) pairs, with shadow-ray
+    roulette below bounds[point] (_group_terms)."""
     count = 0
     for i in range(len(points)):
         s, v = points[i], lights[i]
@@ -197,7 +197,8 @@ def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, we
 def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
                  min_distance2, eps, centre, weight, origin, direction, distance, cos_vpl,
                  pair, flux_weight, budget, seed):
-    """_pair_term for every sample and each VPL of its group, pair by pair, with
+    """_pair_weight and, for a positive one, _segment for every sample and each VPL of
+    its group, pair by pair (pair i of weight), with
     shadow-ray roulette (Arvo & Kirk 1990's Russian roulette on shadow rays, as Ward
     1991 skips the tests of weak lights): a pair whose unoccluded contribution c is
     below S / budget (S: the sample's sum) keeps its ray with probability
@@ -273,19 +274,6 @@ def _group_sums(samples, group_of_sample, start, stop, order, scale, weight, flu
             i += 1
         f = scale[k] / np.pi
         E[s, 0], E[s, 1], E[s, 2] = red * f, green * f, blue * f
-
-
-@njit(cache=True, inline='always')
-def _pair_term(P, N, G, Y, NY, p, v, i, min_distance2, eps, centre, weight, origin,
-               direction, distance, cos_vpl, pair, count):
-    """weight[i]: _pair_weight of point p and VPL v; a positive one also gets shadow
-    segment `count` (_segment). Returns the next free segment."""
-    w, dist2, cos_y = _pair_weight(P, N, G, Y, NY, p, v, min_distance2)
-    weight[i] = w
-    if w <= 0:
-        return count
-    return _segment(P, G, Y, p, v, i, dist2, cos_y, eps, centre, origin, direction,
-                    distance, cos_vpl, pair, count)
 
 
 @njit(cache=True, inline='always')

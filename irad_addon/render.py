@@ -227,7 +227,7 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         E_indirect, gather_stats["shadow_rays_per_point"] = \
             transfer_reuse.reused_indirect_irradiance(
                 frame, gb, vpls, transfer[1], dmin, subset_of_sample, subsets, kept, check,
-                budget, gather.hash_seed((settings.seed, rows[0])))
+                budget, seed=(settings.seed, rows[0]))
     else:
         E_indirect = gather.indirect_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, check,

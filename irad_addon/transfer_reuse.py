@@ -92,10 +92,11 @@ def fits(samples, vpls, subsets):
 
 
 def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sample, subsets,
-                               band, cancel=None, budget=0.0, key=0):
+                               band, cancel=None, budget=0.0, seed=0):
     """Irradiance (S, 3) from the VPLs like gather.indirect_irradiance, with the kept
     VPLs' transfer from `band` (a BandTransfer, updated in place) and new columns traced
-    only for the VPLs not seen before, with the shadow-ray roulette of `budget` (its
+    only for the VPLs not seen before, with the shadow-ray roulette of `budget`, its
+    random numbers hashed from `seed` (ints) as in gather.indirect_irradiance (its
     decisions are kept with the columns: unbiased in every frame). Returns E and the
     new VPLs gathered per point."""
     E = np.zeros((len(gb.hit), 3))
@@ -123,7 +124,7 @@ def reused_indirect_irradiance(frame, gb, vpls, ids, min_distance, subset_of_sam
     bounds = (band.totals / budget if budget > 0 and band.totals is not None else None)
     traced = _trace(frame, gb, vpls, dense, np.concatenate(point) if point else [],
                     np.concatenate(light) if light else [], min_distance, cancel, bounds,
-                    budget, key)
+                    budget, gather.hash_seed(seed))
     if traced is None:
         return E, 0.0
     blocks, new_transfer = traced

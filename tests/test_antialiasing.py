@@ -56,7 +56,8 @@ def test_coverage_rays_only_in_pixels_edges_cross(addon):
     edges = np.abs(normals[64] - normals[4]).max(-1) > 0.05
     frame = core.frame.prepare_frame(data)
     gb = core.gbuffer.build_gbuffer(frame, data.camera, 4, np.random.default_rng(0))
-    traced = core.antialiasing.edge_pixels(gb).reshape(edges.shape)
+    aa = core.antialiasing
+    traced = aa.edge_pixels(gb, aa.uniform_pixels(gb)).reshape(edges.shape)
     assert edges.mean() > 0.02
     assert traced[edges].mean() > 0.97, traced[edges].mean()
     assert traced.mean() < 4 * edges.mean(), (traced.mean(), edges.mean())
