@@ -7,6 +7,7 @@ keeps the stratification and decorrelates the high dimensions and the frames.
 import functools
 
 import numpy as np
+from numba import njit
 
 _PRIMES = None
 
@@ -60,14 +61,55 @@ def scrambling(seed, dims):
     return tables
 
 
+@functools.lru_cache(maxsize=16)
+def _packed_scrambling(seed, dims):
+    """scrambling(seed, dims) flattened for _halton_points: (digits per dimension, offset
+    of each dimension's tables, all tables end to end); an empty table for seed 0."""
+    bases = primes(dims)
+    digits = np.ceil(32 * np.log(2) / np.log(bases)).astype(np.int64)
+    tables = scrambling(seed, dims)
+    if tables[0] is None:
+        return digits, np.zeros(dims, np.int64), np.zeros(0, np.int64)
+    sizes = np.array([t.size for t in tables], np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    return digits, offsets, np.concatenate([t.ravel() for t in tables]).astype(np.int64)
+
+
 def halton(count, dims, seed=0, start=0):
     """(count, dims) points of the Halton sequence, indices start..start+count-1.
     seed 0 is the plain sequence; other seeds scramble the digits."""
-    index = np.arange(start, start + count, dtype=np.int64)
-    out = np.empty((count, dims), np.float64)
-    for d, (base, perms) in enumerate(zip(primes(dims), scrambling(seed, dims))):
-        out[:, d] = radical_inverse(int(base), index, perms)
+    return halton_at(np.arange(start, start + count, dtype=np.int64), 0, dims, dims, seed)
+
+
+def halton_at(index, first, count, dims, seed=0):
+    """(len(index), count) Halton points at `index`, dimensions first..first+count-1 of
+    a `dims`-dimensional sequence (its scrambling). Compiled: the same numbers as
+    radical_inverse per dimension."""
+    out = np.empty((len(index), count), np.float64)
+    digits, offsets, table = _packed_scrambling(seed, dims)
+    chosen = slice(first, first + count)
+    _halton_points(np.asarray(index, np.int64), primes(dims)[chosen].astype(np.int64),
+                   digits[chosen], offsets[chosen], table, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _halton_points(index, bases, digits, offsets, table, out):
+    scrambled = len(table) > 0
+    for d in range(len(bases)):
+        base = bases[d]
+        for i in range(len(index)):
+            n, result, scale = index[i], 0.0, 1.0 / base
+            for k in range(digits[d]):
+                digit = n % base
+                if scrambled:
+                    digit = table[offsets[d] + k * base + digit]
+                elif n == 0:
+                    break   # only zero digits remain
+                result += digit * scale
+                n //= base
+                scale /= base
+            out[i, d] = min(result, 1.0 - 2.0 ** -53)
 
 
 def systematic_draws(weights, count, rng):
@@ -115,6 +157,33 @@ def particle_points(sequence, count, dims, seed):
     if sequence == 'HAMMERSLEY':
         out[:, 0] = (out[:, 0] + rng.random()) % 1.0   # Cranley-Patterson in dimension 0
     return out
+
+
+class ParticleColumns:
+    """Columns first.. of the particle_points of consecutive blocks of particles (one
+    per light: counts, seeds), computed only for the rows asked: a path draws its
+    bounce dimensions only while it lives (most die after a few bounces)."""
+
+    def __init__(self, sequence, counts, seeds, first, dims):
+        self.starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.seeds = list(seeds)
+        # particle_points' dimension d is Halton dimension d, or d - 1 where the first
+        # dimension is i/count (Hammersley, jittered).
+        self.first = first - (0 if sequence == 'HALTON' else 1)
+        self.dims = dims - (0 if sequence == 'HALTON' else 1)
+
+    def __getitem__(self, key):
+        rows, columns = key
+        rows = np.asarray(rows, np.int64)
+        start, stop, _ = columns.indices(self.dims - self.first)
+        out = np.empty((len(rows), stop - start))
+        block = np.searchsorted(self.starts, rows, side='right') - 1
+        for b in np.unique(block):
+            mine = np.flatnonzero(block == b)
+            # particle_points draws Halton indices from 1, with seed + 1.
+            out[mine] = halton_at(rows[mine] - self.starts[b] + 1, self.first + start,
+                                  stop - start, self.dims, self.seeds[b] + 1)
+        return out
 
 
 def cranley_patterson(points, seed):

@@ -77,11 +77,12 @@ def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HAL
         return VPLs.empty()
     dims = _EMIT_DIMS + _BOUNCE_DIMS * max_bounces
     counts = particles_per_emitter(frame.emitters, particles)
-    points = np.concatenate([sampling.particle_points(sequence, int(n), dims, seed + 7919 * i)
-                             for i, n in enumerate(counts)])
+    seeds = [seed + 7919 * i for i in range(len(counts))]
+    points = np.concatenate([sampling.particle_points(sequence, int(n), _EMIT_DIMS, s)
+                             for n, s in zip(counts, seeds)])
     origin, direction, flux = emit_particles(frame.emitters, counts, points)
-    return follow_paths(frame, origin, direction, flux, points[:, _EMIT_DIMS:], max_bounces,
-                        cancel)[0]
+    bounce_u = sampling.ParticleColumns(sequence, counts, seeds, _EMIT_DIMS, dims)
+    return follow_paths(frame, origin, direction, flux, bounce_u, max_bounces, cancel)[0]
 
 
 def follow_paths(frame, origin, direction, flux, bounce_u, max_bounces, cancel=None):

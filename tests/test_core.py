@@ -41,6 +41,33 @@ def test_halton_is_stratified_and_scrambling_keeps_it(core):
     assert not np.allclose(s.halton(64, 2, seed=1), s.halton(64, 2, seed=2))
 
 
+def test_compiled_halton_is_the_radical_inverse(core):
+    # The compiled points are the definition's, digit for digit, plain and scrambled,
+    # in every dimension a particle path uses (bases 2 .. 547).
+    s = core.sampling
+    dims, start = 101, 5
+    for seed in (0, 3):
+        points = s.halton(300, dims, seed=seed, start=start)
+        index = np.arange(start, start + 300)
+        for d, (base, perms) in enumerate(zip(s.primes(dims), s.scrambling(seed, dims))):
+            np.testing.assert_array_equal(points[:, d],
+                                          s.radical_inverse(int(base), index, perms))
+
+
+@pytest.mark.parametrize("sequence", ["HALTON", "HAMMERSLEY", "JITTERED"])
+def test_particle_columns_are_particle_points_drawn_on_demand(core, sequence):
+    # Two lights' blocks of particles: the rows a path asks for, bounce by bounce, hold
+    # the numbers particle_points gives each block up front.
+    s = core.sampling
+    counts, seeds, dims = [40, 25], [3, 3 + 7919], 23
+    full = np.concatenate([s.particle_points(sequence, n, dims, seed)
+                           for n, seed in zip(counts, seeds)])
+    columns = s.ParticleColumns(sequence, counts, seeds, 5, dims)
+    rows = np.array([64, 0, 39, 40, 41, 7])
+    for a in range(0, dims - 5, 3):
+        np.testing.assert_array_equal(columns[rows, a:a + 3], full[rows, 5 + a:8 + a])
+
+
 def test_same_seed_same_image_other_seed_other_noise(core):
     sd = core.scene_data
     light = sd.PointLight(np.array([0.0, 0.0, 0.5]), np.ones(3), 100.0, 0.0)
