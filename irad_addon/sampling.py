@@ -27,7 +27,8 @@ def primes(count):
 
 
 def radical_inverse(base, indices, permutations=None):
-    """Van der Corput radical inverse of `indices` in `base`, digits optionally
+    """Van der Corput radical inverse of `indices` in `base` (the definition that the
+    compiled halton_at follows; tests compare them), digits optionally
     permuted (permutations: (digits, base) int array, one permutation per digit)."""
     indices = np.asarray(indices, np.int64).copy()
     digits = int(np.ceil(32 * np.log(2) / np.log(base)))
@@ -63,16 +64,25 @@ def scrambling(seed, dims):
 
 @functools.lru_cache(maxsize=16)
 def _packed_scrambling(seed, dims):
-    """scrambling(seed, dims) flattened for _halton_points: (digits per dimension, offset
-    of each dimension's tables, all tables end to end); an empty table for seed 0."""
-    bases = primes(dims)
+    """scrambling(seed, dims) flattened for _halton_points: digits per dimension, each
+    dimension's offset into the tables, all tables end to end, and per dimension and
+    digit k the value of digits k.. once the index has run out of digits (each a
+    permuted 0: `tail`, digits + 1 entries per dimension). Empty tables for seed 0."""
+    bases = primes(dims).astype(np.int64)
     digits = np.ceil(32 * np.log(2) / np.log(bases)).astype(np.int64)
     tables = scrambling(seed, dims)
+    tail_offsets = np.concatenate([[0], np.cumsum(digits + 1)[:-1]])
     if tables[0] is None:
-        return digits, np.zeros(dims, np.int64), np.zeros(0, np.int64)
+        return digits, np.zeros(dims, np.int64), np.zeros(0, np.int64), \
+            tail_offsets, np.zeros(int((digits + 1).sum()))
     sizes = np.array([t.size for t in tables], np.int64)
     offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    return digits, offsets, np.concatenate([t.ravel() for t in tables]).astype(np.int64)
+    tails = []
+    for base, table in zip(bases, tables):
+        zeros = table[:, 0] * float(base) ** -np.arange(1.0, len(table) + 1)
+        tails.append(np.concatenate([np.cumsum(zeros[::-1])[::-1], [0.0]]))
+    return (digits, offsets, np.concatenate([t.ravel() for t in tables]).astype(np.int64),
+            tail_offsets, np.concatenate(tails))
 
 
 def halton(count, dims, seed=0, start=0):
@@ -83,32 +93,35 @@ def halton(count, dims, seed=0, start=0):
 
 def halton_at(index, first, count, dims, seed=0):
     """(len(index), count) Halton points at `index`, dimensions first..first+count-1 of
-    a `dims`-dimensional sequence (its scrambling). Compiled: the same numbers as
-    radical_inverse per dimension."""
+    a `dims`-dimensional sequence (its scrambling). Compiled: radical_inverse per
+    dimension, to rounding."""
     out = np.empty((len(index), count), np.float64)
-    digits, offsets, table = _packed_scrambling(seed, dims)
+    digits, offsets, table, tail_offsets, tail = _packed_scrambling(seed, dims)
     chosen = slice(first, first + count)
     _halton_points(np.asarray(index, np.int64), primes(dims)[chosen].astype(np.int64),
-                   digits[chosen], offsets[chosen], table, out)
+                   digits[chosen], offsets[chosen], table, tail_offsets[chosen], tail, out)
     return out
 
 
 @njit(cache=True, nogil=True)
-def _halton_points(index, bases, digits, offsets, table, out):
+def _halton_points(index, bases, digits, offsets, table, tail_offsets, tail, out):
     scrambled = len(table) > 0
     for d in range(len(bases)):
         base = bases[d]
+        inverse = 1.0 / base
         for i in range(len(index)):
-            n, result, scale = index[i], 0.0, 1.0 / base
-            for k in range(digits[d]):
-                digit = n % base
+            n, result, scale, k = index[i], 0.0, inverse, 0
+            while n > 0 and k < digits[d]:   # the index's own digits
+                rest = n // base
+                digit = n - rest * base
                 if scrambled:
                     digit = table[offsets[d] + k * base + digit]
-                elif n == 0:
-                    break   # only zero digits remain
                 result += digit * scale
-                n //= base
-                scale /= base
+                n = rest
+                scale *= inverse
+                k += 1
+            if scrambled:                    # the permuted zeros after them
+                result += tail[tail_offsets[d] + k]
             out[i, d] = min(result, 1.0 - 2.0 ** -53)
 
 

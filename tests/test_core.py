@@ -42,16 +42,17 @@ def test_halton_is_stratified_and_scrambling_keeps_it(core):
 
 
 def test_compiled_halton_is_the_radical_inverse(core):
-    # The compiled points are the definition's, digit for digit, plain and scrambled,
-    # in every dimension a particle path uses (bases 2 .. 547).
+    # The compiled points are the definition's (to rounding: they sum the digits in
+    # another order), plain and scrambled, in every dimension a path uses (bases 2..547).
     s = core.sampling
     dims, start = 101, 5
     for seed in (0, 3):
         points = s.halton(300, dims, seed=seed, start=start)
         index = np.arange(start, start + 300)
         for d, (base, perms) in enumerate(zip(s.primes(dims), s.scrambling(seed, dims))):
-            np.testing.assert_array_equal(points[:, d],
-                                          s.radical_inverse(int(base), index, perms))
+            np.testing.assert_allclose(points[:, d],
+                                       s.radical_inverse(int(base), index, perms),
+                                       rtol=1e-14, atol=1e-16)
 
 
 @pytest.mark.parametrize("sequence", ["HALTON", "HAMMERSLEY", "JITTERED"])
