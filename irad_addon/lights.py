@@ -284,6 +284,7 @@ class SunEmitter:
         self.delta = self.cos_half >= 1.0
         self.center, self.radius = bounds
         self.portals = portals
+        self.guide = None   # an emission_guide.EmissionGuide over the disc, if any
 
     def _directions(self, u):
         if self.delta:
@@ -323,13 +324,18 @@ class SunEmitter:
         if self.portals is not None:
             return self._emit_through_portals(u)
         # Particles enter through a disc facing the sun that covers the scene's bounding
-        # sphere, so each carries the flux through its share of the disc.
+        # sphere, so each carries the flux through its share of the disc (divided by
+        # the guide's density where one draws the disc: emission_guide.py).
         n = len(u)
         to_sun = self._directions(u[:, 2:4])
         t, s = sampling.orthonormal_basis(to_sun)
-        disc = sampling.square_to_disk(u[:, 0:2]) * self.radius
+        square, share = u[:, 0:2], np.ones(n)
+        if self.guide is not None:
+            square, density = self.guide.warp(square)
+            share = 1.0 / density
+        disc = sampling.square_to_disk(square) * self.radius
         origin = self.center + to_sun * (1.01 * self.radius) + disc[:, :1] * t + disc[:, 1:2] * s
-        return origin, -to_sun, np.broadcast_to(self.power() / n, (n, 3))
+        return origin, -to_sun, (self.power() / n) * share[:, None]
 
     def _emit_through_portals(self, u):
         """Uniform points on portals chosen by projected area, the sun's directions:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import bidirectional, metropolis, vpl
+from . import bidirectional, emission_guide, metropolis, vpl
 from .gbuffer import build_gbuffer
 from .incremental import IncrementalVPLs
 from .transfer_reuse import TransferCache
@@ -55,11 +55,16 @@ def pilot_gbuffer(frame, rng):
 def vpls_for_frame(frame, settings, state=None, cancel=None):
     """The VPLs of this frame for `settings.variant`, and the info dict of place_vpls:
     the one call site for the renderer and the bake."""
-    if settings.variant == 'CLASSIC':   # needs no camera pass
+    gb = None
+    if emission_guide.guidable(frame) and frame.scene.camera is not None:
+        gb = pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
+        frame = emission_guide.guided_frame(frame, gb, settings.seed)
+    if settings.variant == 'CLASSIC':   # needs no camera pass but the sun's guide
         return (vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
                                seed=settings.seed, cancel=cancel, sequence=settings.sequence),
                 {'variant': 'CLASSIC', 'reason': "Classic: chosen in the render settings"})
-    gb = pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
+    if gb is None:
+        gb = pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
     return place_vpls(frame, gb, settings, state)
 
 
