@@ -23,9 +23,11 @@ def light_sample_pattern(count, points, rng):
                                           rng.random((points, 2)))
 
 
-def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
+def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None,
+                      shadow_edges=None):
     """Irradiance (S, 3) from every emitter, with shadow rays. `visible(origins,
-    directions, tfar)` replaces the plain shadow-ray test (mirrors.py uses it)."""
+    directions, tfar)` replaces the plain shadow-ray test (mirrors.py uses it).
+    shadow_edges: an antialiasing.HardShadowEdges shown each emitter's shadow rays."""
     E = np.zeros((len(gb.hit), 3))
     idx = np.flatnonzero(gb.hit)
     if len(idx) == 0:
@@ -55,9 +57,11 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None):
                                                       segment, tfar, point, start)
                 energy[start:rows] = e[point[start:rows]]
         lit = visible(origin[:rows], segment[:rows], tfar[:rows])
-        for c in range(3):
-            E[idx, c] += np.bincount(point[:rows][lit], energy[:rows, c][lit],
-                                     len(idx)) / count
+        E_emitter = np.stack([np.bincount(point[:rows][lit], energy[:rows, c][lit],
+                                          len(idx)) / count for c in range(3)], -1)
+        E[idx] += E_emitter
+        if shadow_edges is not None:
+            shadow_edges.add(idx, point[:rows], lit, E_emitter)
     return E
 
 

@@ -184,26 +184,29 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     t = time.perf_counter()
     report(0.0, "Tracing camera rays")
     kept = transfer[0].bands.get(rows) if transfer is not None else None
+    film = coverage = refined = E_refined = None
     if kept is not None:   # the same camera, geometry and settings: the same G-buffers
         (gb, film), coverage = kept.gbuffers, kept.coverage
         rng.bit_generator.state = kept.rng_state
     else:
         gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
-        film = coverage = None
-        if settings.coverage_samples > settings.aa_samples:
-            film, coverage = antialiasing.film_gbuffer(frame, cam, gb,
-                                                       settings.coverage_samples, rng, padded)
-        if transfer is not None:
-            kept = transfer[0].bands[rows] = transfer_reuse.BandTransfer(
-                (gb, film), rng.bit_generator.state, coverage=coverage)
+        first_state = rng.bit_generator.state   # a kept band's frames start here
     tally.add("gbuffer", t)
 
     t = time.perf_counter()
     report(0.05, "Direct light")
     lightcuts = (gather.Lightcuts(settings.lightcut_error, settings.max_cut)
                  if settings.use_lightcuts else None)
+    wants_film = kept is None and settings.coverage_samples > settings.aa_samples
+    # Hard shadow edges get their own coverage samples' direct light (antialiasing.py);
+    # not with kept transfer, whose film must stay the same from frame to frame.
+    edges = shadow_edges = None
+    if wants_film and transfer is None and light_points is None:
+        edges = antialiasing.surface_edges(gb)
+        shadow_edges = antialiasing.HardShadowEdges(gb, edges)
     if light_points is None:
-        E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check)
+        E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check,
+                                            shadow_edges=shadow_edges)
     else:
         direct_stats = {}
         E_direct = direct_lightcuts.direct_irradiance(frame, *light_points, gb,
@@ -214,6 +217,28 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     tally.add("direct", t)
     if check():
         raise Cancelled()
+
+    if wants_film:
+        t = time.perf_counter()
+        # A generator of its own: a kept band's later frames, which keep the film, draw
+        # the same light samples as its first.
+        film_rng = np.random.default_rng([settings.seed, rows[0], 1])
+        flagged = shadow_edges.pixels(E_direct) if shadow_edges is not None else None
+        film, coverage = antialiasing.film_gbuffer(frame, cam, gb, settings.coverage_samples,
+                                                   film_rng, padded, flagged, edges)
+        tally.add("gbuffer", t)
+        if flagged is not None:
+            t = time.perf_counter()
+            refined = antialiasing.shadow_edge_samples(film, coverage, flagged)
+            per_ray = max(1, settings.light_samples * settings.aa_samples
+                          // settings.coverage_samples)
+            E_refined = gather.direct_irradiance(   # as many shadow rays per pixel
+                frame, antialiasing.take_samples(film, refined), per_ray, film_rng, check)
+            tally.count("shadow_edge_pixels", float(flagged.mean()))
+            tally.add("direct", t)
+    if transfer is not None and kept is None:
+        kept = transfer[0].bands[rows] = transfer_reuse.BandTransfer(
+            (gb, film), first_state, coverage=coverage)
 
     t = time.perf_counter()
     subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
@@ -235,12 +260,13 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
             gather_stats, budget, seed=(settings.seed, rows[0]))
     tally.count("shadow_rays_per_point", gather_stats.get("shadow_rays_per_point", 0.0))
     tally.add("indirect", t)
+    mirrored_direct = None
     if frame.mirror is not None:   # skipped entirely for scenes without mirrors
         t = time.perf_counter()
         report(0.85, "Light through mirrors")
         mirrored_direct, mirrored_indirect = mirrors.mirrored_irradiance(
             frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
-        E_direct += mirrored_direct
+        E_direct = E_direct + mirrored_direct   # kept apart for film_direct
         E_indirect += mirrored_indirect
         tally.add("mirrors", t)
     if settings.bias_compensation:
@@ -254,7 +280,8 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         raise Cancelled()
     if film is not None:
         t = time.perf_counter()
-        E_direct, E_indirect = coverage.carry(E_direct), coverage.carry(E_indirect)
+        E_direct = film_direct(coverage, E_direct, mirrored_direct, refined, E_refined)
+        E_indirect = coverage.carry(E_indirect)
         if kept is None or kept.still is None:
             # The Normal pass keeps the shading samples' interpolated normals.
             film.normal = gb.pixel_mean(gb.normal).reshape(-1, 3)[film.pixel]
@@ -268,6 +295,18 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
                           settings.film_transparent, kept.still if kept else None)
     crop = slice(rows[0] - padded[0], rows[1] - padded[0])
     return {name: image[crop] for name, image in band.items()}
+
+
+def film_direct(coverage, E_direct, mirrored_direct, refined, E_refined):
+    """Direct light (film samples, 3): carried from the shading samples' E_direct,
+    except at the coverage samples `refined` (on hard shadow edges), which have their
+    own E_refined plus the light they receive through mirrors, carried (None: none)."""
+    out = coverage.carry(E_direct)
+    if refined is not None and len(refined):
+        out[refined] = E_refined
+        if mirrored_direct is not None:
+            out[refined] += coverage.carry(mirrored_direct)[refined]
+    return out
 
 
 def compose_passes(gb, E_direct, E_indirect, world_radiance, film_transparent, still=None):

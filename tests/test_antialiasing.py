@@ -91,3 +91,48 @@ def test_edge_samples_lower_the_error_against_cycles(scene, addon):
         image = core.render.render_frame(data, settings).passes["Combined"][..., :3]
         errors[coverage] = metrics.relmse(image, ref)
     assert errors[16] < 0.8 * errors[0], errors
+
+
+def shadow_edge_render(core, data, seed, **settings):
+    """(direct pass, share of pixels whose coverage samples gathered their own light)."""
+    s = core.render.RenderSettings(particles=64, bias_compensation=False, seed=seed,
+                                   **settings)
+    result = core.render.render_frame(data, s)
+    return result.passes["IRAD Direct"], result.stats.get("shadow_edge_pixels", 0.0)
+
+
+def test_hard_shadow_edges_gather_light_per_coverage_sample(addon, monkeypatch):
+    # The panel's shadow from a point light of radius 0 is a hard edge across flat
+    # walls: carried from 4 shading samples it moves with their random positions (no
+    # geometric edge there, so no coverage rays before). Direct light has no other
+    # noise, so 64 shaded samples per pixel are the answer.
+    core = addon.irad_addon
+    aa = core.antialiasing
+    data = box_with_a_panel(core)
+    truth = direct_pass(core, data, aa_samples=64, coverage_samples=0)
+    flagged, pixels = [], aa.HardShadowEdges.pixels
+    monkeypatch.setattr(aa.HardShadowEdges, "pixels",
+                        lambda self, E: flagged.append(pixels(self, E)) or flagged[-1])
+    refined = [shadow_edge_render(core, data, seed) for seed in range(4)]
+    with monkeypatch.context() as m:   # the shadow edges carried, as before
+        m.setattr(aa.HardShadowEdges, "pixels", lambda self, E: np.zeros_like(pixels(self, E)))
+        carried = [shadow_edge_render(core, data, seed)[0] for seed in range(4)]
+    shares = [share for _, share in refined]
+    assert min(shares) > 0.01, shares            # the shadow's edge, a line of pixels
+    assert max(shares) < 0.1, shares
+    edge = np.any(flagged, 0).reshape(truth.shape[:2])
+    error = lambda image: np.mean((image - truth)[edge] ** 2)   # noqa: E731
+    ours, before = np.mean([error(i) for i, _ in refined]), np.mean([error(i) for i in carried])
+    assert ours < 0.5 * before, (ours, before)   # measured 0.20x on the edge's pixels
+
+
+def test_soft_penumbrae_are_not_taken_for_hard_edges(addon):
+    # A spherical light of radius 0.3 casts a penumbra many pixels wide: its samples
+    # are partly lit, and its edge needs no coverage samples (measured 0.1% of the
+    # pixels flagged, against ~3% for the point light's).
+    core = addon.irad_addon
+    data = box_with_a_panel(core)
+    hard = np.mean([shadow_edge_render(core, data, seed)[1] for seed in range(2)])
+    data.lights[0].radius = 0.3
+    soft = np.mean([shadow_edge_render(core, data, seed)[1] for seed in range(2)])
+    assert soft < 0.25 * hard, (soft, hard)
