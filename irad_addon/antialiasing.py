@@ -41,6 +41,10 @@ NEIGHBOUR_PAIRS = ((0, 1), (1, -1), (1, 0), (1, 1))
 # A hard shadow edge is resolved per coverage sample where the emitter casting it gives
 # at least this share of the pixel's mean direct irradiance (luminance).
 HARD_EDGE_SHARE = 0.1
+# Coverage rays on a hard shadow edge, per coverage sample elsewhere: the edge splits
+# the pixel into a lit and a dark part whose areas only coverage measures (the sun-lit
+# room: direct variance 2.1e-3 at 16 rays, 7e-4 at 64, which cost 4% of its pixels).
+SHADOW_EDGE_RAYS = 4
 
 
 def candidate_samples(gb, pixels, offsets):
@@ -238,21 +242,22 @@ def surface_edges(gb):
 
 def film_gbuffer(frame, cam, gb, samples, rng, rows, shadow_edges=None, edges=None):
     """The samples the image is averaged from, and the CoverageMap that carries the
-    shading samples' irradiance to them: `samples` coverage rays in each edge pixel
-    and in the pixels `shadow_edges` (bool, HardShadowEdges.pixels), the shading
+    shading samples' irradiance to them: `samples` coverage rays in each edge pixel,
+    SHADOW_EDGE_RAYS times as many in the pixels `shadow_edges` (bool,
+    HardShadowEdges.pixels), the shading
     samples themselves in every other pixel (most of them: one surface, nothing to
     resolve). Coverage samples have smooth normals: on shadow edges they gather light.
     edges: gb's surface_edges if already known."""
     uniform, edge = edges if edges is not None else surface_edges(gb)
-    if shadow_edges is not None:
-        edge = edge | shadow_edges
-    cov = build_gbuffer(frame, cam, samples, rng, rows, pixels=np.flatnonzero(edge))
-    own = np.flatnonzero(~edge[gb.pixel])
-    joined = {}
-    for f in fields(GBuffer):
-        a, b = getattr(gb, f.name), getattr(cov, f.name)
-        if isinstance(a, np.ndarray) and f.name != "counts":
-            joined[f.name] = np.concatenate([a[own], b])
+    shadow = shadow_edges if shadow_edges is not None else np.zeros_like(edge)
+    own = np.flatnonzero(~(edge | shadow)[gb.pixel])
+    parts = [take_samples(gb, own),
+             build_gbuffer(frame, cam, samples, rng, rows, pixels=np.flatnonzero(edge & ~shadow)),
+             build_gbuffer(frame, cam, SHADOW_EDGE_RAYS * samples, rng, rows,
+                           pixels=np.flatnonzero(shadow))]
+    joined = {f.name: np.concatenate([getattr(part, f.name) for part in parts])
+              for f in fields(GBuffer)
+              if isinstance(getattr(gb, f.name), np.ndarray) and f.name != "counts"}
     film = GBuffer(gb.width, gb.height, gb.row_start, samples, **joined)
     film.counts = np.bincount(film.pixel, minlength=gb.width * gb.height)
     return film, coverage_map(film, gb, own, uniform)
