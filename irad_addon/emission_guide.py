@@ -29,7 +29,7 @@ CAMERA_POINTS = 256
 TRIES = 4
 # A cell next to useful ones gets at least this share of their density: a window's
 # edge cell whose few pilots all missed the opening still gets particles.
-NEIGHBOUR_SHARE = 0.25
+NEIGHBOUR_SHARE = 0.5
 # Share of particles spread uniformly whatever the pilot found.
 DEFENSIVE = 0.1
 
