@@ -251,13 +251,20 @@ def film_gbuffer(frame, cam, gb, samples, rng, rows, shadow_edges=None, edges=No
     uniform, edge = edges if edges is not None else surface_edges(gb)
     shadow = shadow_edges if shadow_edges is not None else np.zeros_like(edge)
     own = np.flatnonzero(~(edge | shadow)[gb.pixel])
-    parts = [take_samples(gb, own),
-             build_gbuffer(frame, cam, samples, rng, rows, pixels=np.flatnonzero(edge & ~shadow)),
-             build_gbuffer(frame, cam, SHADOW_EDGE_RAYS * samples, rng, rows,
-                           pixels=np.flatnonzero(shadow))]
-    joined = {f.name: np.concatenate([getattr(part, f.name) for part in parts])
-              for f in fields(GBuffer)
-              if isinstance(getattr(gb, f.name), np.ndarray) and f.name != "counts"}
+    traced = [build_gbuffer(frame, cam, samples, rng, rows,
+                            pixels=np.flatnonzero(edge & ~shadow)),
+              build_gbuffer(frame, cam, SHADOW_EDGE_RAYS * samples, rng, rows,
+                            pixels=np.flatnonzero(shadow))]
+    joined = {}
+    for f in fields(GBuffer):
+        a = getattr(gb, f.name)
+        if isinstance(a, np.ndarray) and f.name != "counts":
+            # The shading samples kept go straight into the joined array: one copy.
+            tail = [getattr(part, f.name) for part in traced]
+            out = np.empty((len(own) + sum(len(t) for t in tail),) + a.shape[1:], a.dtype)
+            np.take(a, own, axis=0, out=out[:len(own)])
+            out[len(own):] = np.concatenate(tail)
+            joined[f.name] = out
     film = GBuffer(gb.width, gb.height, gb.row_start, samples, **joined)
     film.counts = np.bincount(film.pixel, minlength=gb.width * gb.height)
     return film, coverage_map(film, gb, own, uniform)
