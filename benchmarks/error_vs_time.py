@@ -116,8 +116,11 @@ def apply_settings(scene, settings):
 
 
 def fresh_bvh(addon):
-    """Drop the engine's cached BVH so every timed render builds its own, as Cycles does."""
-    engine_class().tracer_cache = addon.irad_addon.rays.RayTracerCache()
+    """Drop the engine's cached BVH and VPLs so every timed render builds and traces its
+    own, as Cycles does (a render with the same settings would reuse the VPLs)."""
+    engine = engine_class()
+    engine.tracer_cache = addon.irad_addon.rays.RayTracerCache()
+    engine.vpl_cache = type(engine.vpl_cache)()
 
 
 def render_ours(addon, scene, settings):
