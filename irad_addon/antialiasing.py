@@ -256,15 +256,13 @@ def film_gbuffer(frame, cam, gb, samples, rng, rows, shadow_edges=None, edges=No
               build_gbuffer(frame, cam, SHADOW_EDGE_RAYS * samples, rng, rows,
                             pixels=np.flatnonzero(shadow))]
     joined = {}
-    for f in fields(GBuffer):
-        a = getattr(gb, f.name)
-        if isinstance(a, np.ndarray) and f.name != "counts":
-            # The shading samples kept go straight into the joined array: one copy.
-            tail = [getattr(part, f.name) for part in traced]
-            out = np.empty((len(own) + sum(len(t) for t in tail),) + a.shape[1:], a.dtype)
-            np.take(a, own, axis=0, out=out[:len(own)])
-            out[len(own):] = np.concatenate(tail)
-            joined[f.name] = out
+    for name, a in sample_arrays(gb).items():
+        # The shading samples kept go straight into the joined array: one copy.
+        tail = [getattr(part, name) for part in traced]
+        out = np.empty((len(own) + sum(len(t) for t in tail),) + a.shape[1:], a.dtype)
+        np.take(a, own, axis=0, out=out[:len(own)])
+        out[len(own):] = np.concatenate(tail)
+        joined[name] = out
     film = GBuffer(gb.width, gb.height, gb.row_start, samples, **joined)
     film.counts = np.bincount(film.pixel, minlength=gb.width * gb.height)
     return film, coverage_map(film, gb, own, uniform)
@@ -276,10 +274,16 @@ def shadow_edge_samples(film, coverage, shadow_edges):
     return first + np.flatnonzero(shadow_edges[film.pixel[first:]])
 
 
+def sample_arrays(gb):
+    """{name: array} of the G-buffer's per-sample arrays (not the per-pixel counts,
+    not the mirror arrays of a scene without mirrors)."""
+    return {f.name: getattr(gb, f.name) for f in fields(GBuffer)
+            if isinstance(getattr(gb, f.name), np.ndarray) and f.name != "counts"}
+
+
 def take_samples(gb, index):
     """The G-buffer of samples `index` of gb (per-sample arrays only, for a gather)."""
-    arrays = {f.name: getattr(gb, f.name)[index] for f in fields(GBuffer)
-              if isinstance(getattr(gb, f.name), np.ndarray) and f.name != "counts"}
+    arrays = {name: a[index] for name, a in sample_arrays(gb).items()}
     return GBuffer(gb.width, gb.height, gb.row_start, gb.samples, **arrays)
 
 

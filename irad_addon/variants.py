@@ -55,16 +55,16 @@ def pilot_gbuffer(frame, rng):
 def vpls_for_frame(frame, settings, state=None, cancel=None):
     """The VPLs of this frame for `settings.variant`, and the info dict of place_vpls:
     the one call site for the renderer and the bake."""
-    gb = None
-    if emission_guide.guidable(frame) and frame.scene.camera is not None:
-        gb = pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
+    guide = bool(emission_guide.guidable(frame)) and frame.scene.camera is not None
+    # Classic needs no camera pass, unless a sun is guided toward what the camera sees.
+    gb = (pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
+          if guide or settings.variant != 'CLASSIC' else None)
+    if guide:
         frame = emission_guide.guided_frame(frame, gb, settings.seed)
-    if settings.variant == 'CLASSIC':   # needs no camera pass but the sun's guide
+    if settings.variant == 'CLASSIC':
         return (vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
                                seed=settings.seed, cancel=cancel, sequence=settings.sequence),
                 {'variant': 'CLASSIC', 'reason': "Classic: chosen in the render settings"})
-    if gb is None:
-        gb = pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
     return place_vpls(frame, gb, settings, state)
 
 
