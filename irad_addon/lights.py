@@ -191,6 +191,16 @@ class AreaEmitter:
                                              self.axis_v, self.normal, self.ellipse,
                                              self.area, self.radiance, eps, *out)
 
+    def unoccluded_irradiance(self, P, N, G):
+        """(n, 3) irradiance at points P from the whole light, ignoring occlusion, in
+        closed form for rectangles (the expectation of shadow_segments' energies);
+        None for ellipses."""
+        if self.ellipse:
+            return None
+        factor = light_sampling.rectangle_irradiance_factor(
+            P, N, G, self.center, self.axis_u, self.axis_v, self.normal)
+        return factor[:, None] * self.radiance
+
     def incident(self, points, normals, u):
         direction, dist, g = light_sampling.patch_incident(
             points, normals, u, self.center, self.axis_u, self.axis_v, self.normal,

@@ -212,3 +212,81 @@ def test_compiled_area_light_segments_are_the_emitters_estimator(core, shape):
     assert rows == start and rows > 50
     for a, b in zip(fused, reference + [energy]):
         np.testing.assert_allclose(a[:rows], b[:rows], rtol=1e-12, atol=1e-12)
+
+
+def test_closed_form_rectangle_irradiance_is_the_samples_expectation(core):
+    # The unoccluded irradiance direct light scales by its visible share must be the
+    # mean of the sampled estimator, clipped to both normals' hemispheres (many points
+    # see the light cross their horizon).
+    rng = np.random.default_rng(7)
+    light = core.lights.AreaEmitter(core.scene_data.AreaLight(
+        np.array([0.1, 0.2, 1.0]), np.array([0.4, 0.1, 0.0]), np.array([-0.05, 0.2, 0.0]),
+        np.array([0.0, 0.0, -1.0]), np.array([1.0, 0.8, 0.6]), 50.0, "RECTANGLE"))
+    n = 400
+    P = rng.uniform(-1.5, 1.5, (n, 3)) * [1, 1, 0.5] - [0, 0, 0.25]   # 0.5+ below it
+    N = rng.normal(size=(n, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    G = N + 0.4 * rng.normal(size=(n, 3))
+    G /= np.linalg.norm(G, axis=1, keepdims=True)
+    exact = light.unoccluded_irradiance(P, N, G)[:, 0]
+    m = 4096
+    pattern = rng.random((m, n, 2))
+    rows = m * n
+    out = [np.empty((rows, 3)), np.empty((rows, 3)), np.empty(rows), np.empty(rows, np.int64),
+           np.empty((rows, 3))]
+    rows = light.shadow_segments(P, N, G, pattern, 1e-4, *out)
+    point, energy = out[3][:rows], out[4][:rows, 0]
+    mean = np.bincount(point, energy, n) / m
+    sd = np.sqrt(np.maximum(np.bincount(point, energy ** 2, n) / m - mean ** 2, 0) / m)
+    clipped = ((N @ np.array([0, 0, 1.0])) < 0.9).sum()
+    assert (exact > 0).sum() > 100 and clipped > 100
+    assert np.all(np.abs(mean - exact) <= 5 * sd + 1e-6 * exact.max()), \
+        np.abs(mean - exact).max()
+    assert np.all(exact[mean == 0] < 1e-3 * exact.max())   # nothing where no sample lands
+    assert light.unoccluded_irradiance(P, N, G).shape == (n, 3)
+    ellipse = core.lights.AreaEmitter(core.scene_data.AreaLight(
+        light.center, light.axis_u, light.axis_v, light.normal, np.ones(3), 50.0, "ELLIPSE"))
+    assert ellipse.unoccluded_irradiance(P, N, G) is None   # sampled as before
+
+
+def test_direct_light_is_noise_free_where_the_whole_area_light_is_seen(core):
+    # A square light over a plane with a small occluder: pixels that see the whole light
+    # get its closed-form irradiance whatever the seed; the penumbra keeps sampled
+    # noise, and its mean over seeds is the plain estimator's.
+    plane = synthetic.grid_quad(8, 2.0) * [1, 1, 0]
+    blocker = synthetic.grid_quad(1, 0.2) * [1, 1, 0] + [0.5, 0.0, 0.6]
+    light = core.scene_data.AreaLight(np.array([0.0, 0.0, 1.5]), np.array([0.3, 0, 0]),
+                                      np.array([0, 0.3, 0]), np.array([0.0, 0.0, -1.0]),
+                                      np.ones(3), 100.0, "RECTANGLE")
+    cam = synthetic.camera(core.scene_data, np.array(
+        [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3.0], [0, 0, 0, 1]]), size=24)
+    data = synthetic.scene(core.scene_data, np.concatenate([plane, blocker]), [0.8] * 3,
+                           lights=[light], camera=cam)
+
+    def direct(seed):
+        result = render(core, data, particles=64, max_bounces=0, aa_samples=1,
+                        coverage_samples=0, interleave=1, light_samples=4, seed=seed)
+        return result.passes["IRAD Direct"][..., 0].astype(np.float64)
+
+    images = np.array([direct(seed) for seed in range(24)])
+    spread = images.std(0) / images.mean(0).max()
+    assert np.isfinite(images).all()
+    lit = images.mean(0) > 0
+    noise_free = (spread < 1e-6)[lit].mean()
+    assert 0.7 < noise_free < 0.99, noise_free   # most pixels; the penumbra is noisy
+    assert spread.max() > 0.01
+    # The noise-free pixels are exactly the analytic irradiance rho/pi * L * factor.
+    frame = core.frame.prepare_frame(data, core.rays.RayTracerCache())
+    gb = core.gbuffer.build_gbuffer(frame, cam, 1, np.random.default_rng(0))
+    E = core.gather.direct_irradiance(frame, gb, 4, np.random.default_rng(0))
+    exact = frame.emitters[0].unoccluded_irradiance(gb.position, gb.normal, gb.geo_normal)
+    visible_all = np.isclose(E[:, 0], exact[:, 0], rtol=1e-9)
+    assert visible_all.mean() > 0.5
+    # The penumbra's mean converges to the plain (unbiased) estimator's.
+    plain = [core.gather.direct_irradiance(frame, gb, 64, np.random.default_rng(s))
+             for s in range(8)]
+    ours = [core.gather.direct_irradiance(frame, gb, 4, np.random.default_rng(100 + s))
+            for s in range(64)]
+    shaded = ~visible_all & (exact[:, 0] > 0)
+    rel = np.abs(np.mean(ours, 0) - np.mean(plain, 0))[shaded, 0].mean() / exact[:, 0].max()
+    assert shaded.sum() > 10 and rel < 0.01, rel
