@@ -38,7 +38,7 @@ def settings(core, variant, seed=0, **more):
                                       interleave=2, **more)
 
 
-def test_kept_transfer_renders_what_a_fresh_gather_renders(core):
+def test_kept_transfer_renders_what_a_fresh_gather_renders(core, monkeypatch):
     cache = core.rays.RayTracerCache()
     state = core.variants.VariantState()
     # Every shadow ray traced: the shadow-ray roulette would draw other rays for the
@@ -51,6 +51,10 @@ def test_kept_transfer_renders_what_a_fresh_gather_renders(core):
     # The same frame from the same incremental sites, with nothing kept: every VPL's
     # transfer traced again.
     fresh_state = core.variants.VariantState(incremental=before)
+    # At the kept transfer's clamping distance (its first frame's: the distance follows
+    # the VPL count, which the fresh frame would measure anew).
+    kept_distance = kept.stats["clamp_distance"]
+    monkeypatch.setattr(core.render, "clamp_distance", lambda *args: kept_distance)
     fresh = core.render.render_frame(box_scene(core, light_at(4)), s, tracer_cache=cache,
                                      variant_state=fresh_state)
     a, b = kept.passes["IRAD Indirect"], fresh.passes["IRAD Indirect"]
