@@ -2,7 +2,7 @@
 (shadow rays to light samples) and from the VPLs (one shadow ray per VPL)."""
 import hashlib
 import threading
-from concurrent.futures import as_completed
+from concurrent.futures import Future, as_completed
 from dataclasses import dataclass
 
 import numpy as np
@@ -456,43 +456,85 @@ def indirect_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
     every VPL. `shadow_ray_budget` > 0: shadow-ray roulette (_group_terms), its random
     numbers hashed from `seed` (ints). `stats` (a dict) receives the shadow rays per
     point."""
+    return start_indirect(frame, gb, vpls, min_distance, subset_of_sample, subsets,
+                          lightcuts, shadow_ray_budget, seed, visible).wait(cancel, progress,
+                                                                           stats)
+
+
+class PendingIrradiance:
+    """indirect_irradiance's tasks running on the thread pool; wait() returns E. The
+    caller may work meanwhile (on its own thread: rays.on_calling_thread).
+    run(pending, task) does a task; rays_per_point(pending) tells the rays it traced."""
+
+    def __init__(self, E, tasks, run, rays_per_point):
+        self.E, self.rays_per_point = E, rays_per_point
+        self.traced, self.stop = [], threading.Event()
+        if rays.on_calling_thread_now():   # the workers are busy: run here, now
+            self.futures = [_run_now(run, self, t) for t in tasks]
+        else:
+            self.futures = [rays.thread_pool().submit(run, self, t) for t in tasks]
+
+    def running(self):
+        """Whether any task is still queued or running."""
+        return not all(future.done() for future in self.futures)
+
+    def wait(self, cancel=None, progress=None, stats=None):
+        """E (S, 3) once every task is done; `cancel()` is polled and stops the rest.
+        Workers only compute; progress and cancel stay on the calling (Blender) thread."""
+        for done, future in enumerate(as_completed(self.futures), 1):
+            future.result()
+            if cancel and cancel():
+                self.stop.set()
+            if progress:
+                progress(done / len(self.futures))
+        if stats is not None:
+            stats["shadow_rays_per_point"] = self.rays_per_point(self)
+        return self.E
+
+
+def start_indirect(frame, gb, vpls, min_distance, subset_of_sample, subsets, lightcuts=None,
+                   shadow_ray_budget=0.0, seed=0, visible=None):
+    """indirect_irradiance's work started on the thread pool: a PendingIrradiance."""
     E = np.zeros((len(gb.hit), 3))
     if vpls.count == 0 or not gb.hit.any():
-        return E
+        return _done(E)
     eps = frame.offset()
-    stop = threading.Event()
-    rays_per_point = np.zeros(len(gb.hit))
     if lightcuts is None:
         groups, tasks = grouped_tasks(gb, vpls, subset_of_sample, subsets)
-        traced, key = [], hash_seed(seed)
+        key = hash_seed(seed)
 
-        def run(task):
-            if not stop.is_set():
-                traced.append(group_irradiance(*task, subset_of_sample, groups, gb, vpls,
-                                               min_distance ** 2, frame.tracer, eps, E,
-                                               visible, shadow_ray_budget, key))
-    else:
-        tasks = _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts)
+        def run(pending, task):
+            if not pending.stop.is_set():
+                pending.traced.append(group_irradiance(
+                    *task, subset_of_sample, groups, gb, vpls, min_distance ** 2,
+                    frame.tracer, eps, E, visible, shadow_ray_budget, key))
+        points = np.count_nonzero(gb.hit)
+        return PendingIrradiance(E, tasks, run, lambda pending: sum(pending.traced) / points)
+    tasks = _lightcut_tasks(gb, vpls, subset_of_sample, subsets, lightcuts)
+    cut_sizes = np.zeros(len(gb.hit))
 
-        def run(task):
-            idx, subset, scale, tree = task
-            if stop.is_set():
-                return
-            E_cut, cut_size = lightcuts_module.lightcut_irradiance(
-                gb.position[idx], gb.normal[idx], gb.geo_normal[idx], tree,
-                lightcuts.error, lightcuts.max_cut, min_distance ** 2, frame.tracer, eps)
-            E[idx] = scale * E_cut
-            rays_per_point[idx] = cut_size
+    def run(pending, task):
+        idx, subset, scale, tree = task
+        if pending.stop.is_set():
+            return
+        E_cut, cut_size = lightcuts_module.lightcut_irradiance(
+            gb.position[idx], gb.normal[idx], gb.geo_normal[idx], tree,
+            lightcuts.error, lightcuts.max_cut, min_distance ** 2, frame.tracer, eps)
+        E[idx] = scale * E_cut
+        cut_sizes[idx] = cut_size
+    return PendingIrradiance(E, tasks, run, lambda pending: float(cut_sizes[gb.hit].mean()))
 
-    # Workers only compute; progress and cancel stay on the calling (Blender) thread.
-    futures = [rays.thread_pool().submit(run, t) for t in tasks]
-    for done, future in enumerate(as_completed(futures), 1):
-        future.result()
-        if cancel and cancel():
-            stop.set()
-        if progress:
-            progress(done / len(futures))
-    if stats is not None:
-        stats["shadow_rays_per_point"] = (float(rays_per_point[gb.hit].mean()) if lightcuts
-                                          else sum(traced) / np.count_nonzero(gb.hit))
-    return E
+
+def _run_now(function, *args):
+    """A finished Future of function(*args)."""
+    future = Future()
+    try:
+        future.set_result(function(*args))
+    except BaseException as error:   # re-raised by wait(), as a pool task's would be
+        future.set_exception(error)
+    return future
+
+
+def _done(E):
+    """A PendingIrradiance with nothing to do."""
+    return PendingIrradiance(E, [], None, lambda pending: 0.0)

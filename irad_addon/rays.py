@@ -5,7 +5,9 @@ because embreex releases the GIL inside `run`, so both cores trace at once.
 """
 import hashlib
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,10 +38,32 @@ def thread_pool():
     return _pool
 
 
+_calling_thread = threading.local()
+
+
+@contextmanager
+def on_calling_thread(busy=lambda: True):
+    """Within this block, while busy() is true, parallel_map runs on the calling thread:
+    for work that overlaps a background job holding the pool's workers
+    (render.render_band), whose queue it would otherwise wait behind."""
+    before = getattr(_calling_thread, "busy", None)
+    _calling_thread.busy = busy
+    try:
+        yield
+    finally:
+        _calling_thread.busy = before
+
+
+def on_calling_thread_now():
+    """Whether parallel_map runs on this thread now (on_calling_thread)."""
+    busy = getattr(_calling_thread, "busy", None)
+    return busy is not None and busy()
+
+
 def parallel_map(function, ranges):
     """Run function(start, stop) over ranges in the pool, results in order."""
-    if len(ranges) == 1:
-        return [function(*ranges[0])]
+    if len(ranges) == 1 or on_calling_thread_now():
+        return [function(*r) for r in ranges]
     return list(thread_pool().map(lambda r: function(*r), ranges))
 
 

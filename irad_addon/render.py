@@ -1,11 +1,12 @@
 """One frame, end to end: G-buffer, VPLs, direct and indirect gather, passes."""
+import contextlib
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import (antialiasing, bias_compensation, direct_lightcuts, gather, geometry,
-               interleaving, mirrors, temporal, transfer_reuse, variants)
+               interleaving, mirrors, rays, temporal, transfer_reuse, variants)
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -186,7 +187,7 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     t = time.perf_counter()
     report(0.0, "Tracing camera rays")
     kept = transfer[0].bands.get(rows) if transfer is not None else None
-    film = coverage = refined = E_refined = None
+    film = coverage = None
     if kept is not None:   # the same camera, geometry and settings: the same G-buffers
         (gb, film), coverage = kept.gbuffers, kept.coverage
         rng.bit_generator.state = kept.rng_state
@@ -195,88 +196,55 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         first_state = rng.bit_generator.state   # a kept band's frames start here
     tally.add("gbuffer", t)
 
-    t = time.perf_counter()
-    report(0.05, "Direct light")
     lightcuts = (gather.Lightcuts(settings.lightcut_error, settings.max_cut)
                  if settings.use_lightcuts else None)
-    wants_film = kept is None and settings.coverage_samples > settings.aa_samples
-    # Hard shadow edges get their own coverage samples' direct light (antialiasing.py);
-    # not with kept transfer, whose film must stay the same from frame to frame.
-    edges = shadow_edges = None
-    if wants_film and transfer is None and light_points is None:
-        edges = antialiasing.surface_edges(gb)
-        shadow_edges = antialiasing.HardShadowEdges(gb, edges)
-    if light_points is None:
-        E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check,
-                                            shadow_edges=shadow_edges)
-    else:
-        direct_stats = {}
-        E_direct = direct_lightcuts.direct_irradiance(frame, *light_points, gb,
-                                                      settings.light_samples, rng, lightcuts,
-                                                      check, direct_stats)
-        tally.count("direct_shadow_rays_per_point",
-                    direct_stats.get("shadow_rays_per_point", 0.0))
-    tally.add("direct", t)
-    if check():
-        raise Cancelled()
-
-    if wants_film:
-        t = time.perf_counter()
-        # A generator of its own: a kept band's later frames, which keep the film, draw
-        # the same light samples as its first.
-        film_rng = np.random.default_rng([settings.seed, rows[0], 1])
-        flagged = shadow_edges.pixels(E_direct) if shadow_edges is not None else None
-        film, coverage = antialiasing.film_gbuffer(frame, cam, gb, settings.coverage_samples,
-                                                   film_rng, padded, flagged, edges)
-        tally.add("gbuffer", t)
-        if flagged is not None:
-            t = time.perf_counter()
-            refined = antialiasing.shadow_edge_samples(film, coverage, flagged)
-            per_ray = max(1, settings.light_samples * settings.aa_samples
-                          // settings.coverage_samples)
-            E_refined = gather.direct_irradiance(   # as many shadow rays per pixel
-                frame, antialiasing.take_samples(film, refined), per_ray, film_rng, check)
-            tally.count("shadow_edge_pixels", float(flagged.mean()))
-            tally.add("direct", t)
-    if transfer is not None and kept is None:
-        kept = transfer[0].bands[rows] = transfer_reuse.BandTransfer(
-            (gb, film), first_state, coverage=coverage)
-
-    t = time.perf_counter()
     subset_of_sample = interleaving.sample_subsets(gb.width, padded, gb.samples, k)
     subsets = interleaving.subset_count(k, gb.samples)
     # Each sample gathers one of k x k groups: its share of the budget. The filter
     # averages (2k)^2 of them, so the roulette's noise in the image does not depend on k.
     budget = settings.shadow_ray_budget / k ** 2
     gather_stats = {}
-    if kept is not None:
-        report(0.2, f"Gathering {vpls.count} VPLs, new ones only")
+    pending = None
+    if transfer is None:
+        # The VPL gather runs on the pool's workers while this thread does the rest of
+        # the band with its own rays (rays.on_calling_thread): no core idles through
+        # the serial parts of direct light, film and clamp compensation.
+        report(0.05, f"Gathering {vpls.count} VPLs")
+        pending = gather.start_indirect(frame, gb, vpls, dmin, subset_of_sample, subsets,
+                                        lightcuts, budget, seed=(settings.seed, rows[0]))
+    try:
+        with rays.on_calling_thread(pending.running) if pending else contextlib.nullcontext():
+            E_direct, new_film, refined, E_refined = direct_light(
+                frame, gb, settings, rows, padded, rng, check, report, tally, light_points,
+                lightcuts, wants_film=kept is None, keeps_film=transfer is not None)
+            if new_film is not None:
+                film, coverage = new_film
+            if transfer is not None and kept is None:
+                kept = transfer[0].bands[rows] = transfer_reuse.BandTransfer(
+                    (gb, film), first_state, coverage=coverage)
+            mirrored_direct, E_more = more_indirect_light(
+                frame, gb, vpls, dmin, subset_of_sample, subsets, settings, rng, check,
+                report, tally)
+    except BaseException:   # cancelled or failed: the workers stop too
+        if pending:
+            pending.stop.set()
+        raise
+    if mirrored_direct is not None:
+        E_direct = E_direct + mirrored_direct   # kept apart for film_direct
+
+    t = time.perf_counter()
+    if pending is not None:
+        E_indirect = pending.wait(check, lambda f: report(0.5 + 0.4 * f, "Gathering VPLs"),
+                                  gather_stats)
+    else:
+        report(0.5, f"Gathering {vpls.count} VPLs, new ones only")
         E_indirect, gather_stats["shadow_rays_per_point"] = \
             transfer_reuse.reused_indirect_irradiance(
                 frame, gb, vpls, transfer[1], dmin, subset_of_sample, subsets, kept, check,
                 budget, seed=(settings.seed, rows[0]))
-    else:
-        E_indirect = gather.indirect_irradiance(
-            frame, gb, vpls, dmin, subset_of_sample, subsets, check,
-            lambda f: report(0.2 + 0.7 * f, f"Gathering {vpls.count} VPLs"), lightcuts,
-            gather_stats, budget, seed=(settings.seed, rows[0]))
+    E_indirect += E_more
     tally.count("shadow_rays_per_point", gather_stats.get("shadow_rays_per_point", 0.0))
     tally.add("indirect", t)
-    mirrored_direct = None
-    if frame.mirror is not None:   # skipped entirely for scenes without mirrors
-        t = time.perf_counter()
-        report(0.85, "Light through mirrors")
-        mirrored_direct, mirrored_indirect = mirrors.mirrored_irradiance(
-            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
-        E_direct = E_direct + mirrored_direct   # kept apart for film_direct
-        E_indirect += mirrored_indirect
-        tally.add("mirrors", t)
-    if settings.bias_compensation:
-        t = time.perf_counter()
-        report(0.9, "Compensating the clamp")
-        E_indirect += bias_compensation.clamp_residual_irradiance(
-            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
-        tally.add("bias_compensation", t)
     E_indirect = interleaving.filter_sample_layers(E_indirect, gb, k)
     if check():
         raise Cancelled()
@@ -297,6 +265,80 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
                           settings.film_transparent, kept.still if kept else None)
     crop = slice(rows[0] - padded[0], rows[1] - padded[0])
     return {name: image[crop] for name, image in band.items()}
+
+
+def direct_light(frame, gb, settings, rows, padded, rng, check, report, tally, light_points,
+                 lightcuts, wants_film, keeps_film):
+    """(E_direct, (film, coverage), refined, E_refined) of a band's shading samples gb:
+    direct light, the film G-buffer and its CoverageMap (antialiasing.py; None without
+    coverage samples or unless `wants_film`), and the film samples `refined` on hard
+    shadow edges with their own direct light E_refined (None: none)."""
+    t = time.perf_counter()
+    report(0.1, "Direct light")
+    cam = frame.scene.camera
+    refined = E_refined = None
+    wants_film = wants_film and settings.coverage_samples > settings.aa_samples
+    # Hard shadow edges get their own coverage samples' direct light (antialiasing.py);
+    # not with kept transfer, whose film must stay the same from frame to frame.
+    edges = shadow_edges = None
+    if wants_film and not keeps_film and light_points is None:
+        edges = antialiasing.surface_edges(gb)
+        shadow_edges = antialiasing.HardShadowEdges(gb, edges)
+    if light_points is None:
+        E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check,
+                                            shadow_edges=shadow_edges)
+    else:
+        direct_stats = {}
+        E_direct = direct_lightcuts.direct_irradiance(frame, *light_points, gb,
+                                                      settings.light_samples, rng, lightcuts,
+                                                      check, direct_stats)
+        tally.count("direct_shadow_rays_per_point",
+                    direct_stats.get("shadow_rays_per_point", 0.0))
+    tally.add("direct", t)
+    if check():
+        raise Cancelled()
+    if not wants_film:
+        return E_direct, None, refined, E_refined
+    t = time.perf_counter()
+    # A generator of its own: a kept band's later frames, which keep the film, draw
+    # the same light samples as its first.
+    film_rng = np.random.default_rng([settings.seed, rows[0], 1])
+    flagged = shadow_edges.pixels(E_direct) if shadow_edges is not None else None
+    film, coverage = antialiasing.film_gbuffer(frame, cam, gb, settings.coverage_samples,
+                                               film_rng, padded, flagged, edges)
+    tally.add("gbuffer", t)
+    if flagged is not None:
+        t = time.perf_counter()
+        refined = antialiasing.shadow_edge_samples(film, coverage, flagged)
+        per_ray = max(1, settings.light_samples * settings.aa_samples
+                      // settings.coverage_samples)
+        E_refined = gather.direct_irradiance(   # as many shadow rays per pixel
+            frame, antialiasing.take_samples(film, refined), per_ray, film_rng, check)
+        tally.count("shadow_edge_pixels", float(flagged.mean()))
+        tally.add("direct", t)
+    return E_direct, (film, coverage), refined, E_refined
+
+
+def more_indirect_light(frame, gb, vpls, dmin, subset_of_sample, subsets, settings, rng,
+                        check, report, tally):
+    """(direct light through mirrors or None, indirect light (S, 3) besides the VPL
+    gather's): through mirrors, and what clamping took (bias compensation)."""
+    E = np.zeros((len(gb.hit), 3))
+    mirrored_direct = None
+    if frame.mirror is not None:   # skipped entirely for scenes without mirrors
+        t = time.perf_counter()
+        report(0.3, "Light through mirrors")
+        mirrored_direct, mirrored_indirect = mirrors.mirrored_irradiance(
+            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
+        E += mirrored_indirect
+        tally.add("mirrors", t)
+    if settings.bias_compensation:
+        t = time.perf_counter()
+        report(0.4, "Compensating the clamp")
+        E += bias_compensation.clamp_residual_irradiance(
+            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng, check)
+        tally.add("bias_compensation", t)
+    return mirrored_direct, E
 
 
 def film_direct(coverage, E_direct, mirrored_direct, refined, E_refined):

@@ -1,4 +1,6 @@
 """Core maths on scenes made of arrays: furnace energy, determinism, robustness."""
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -80,6 +82,37 @@ def test_same_seed_same_image_other_seed_other_noise(core):
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
 
+
+
+def test_work_beside_the_background_gather_changes_nothing(core, monkeypatch):
+    # render_band gathers VPL light on the pool's workers while its own thread traces
+    # direct light, the film and the clamp compensation (rays.on_calling_thread): the
+    # image must be the one of the same work done one stage after another.
+    sd = core.scene_data
+    block = synthetic.closed_box(1, 0.2) + np.array([0.2, 0.0, -0.6], np.float32)
+    light = sd.AreaLight(np.array([0.0, 0.0, 0.95]), np.array([0.2, 0, 0]),
+                         np.array([0, 0.2, 0]), np.array([0.0, 0.0, -1.0]), np.ones(3), 50.0,
+                         "RECTANGLE")
+    data = synthetic.scene(sd, np.concatenate([synthetic.closed_box(3), block]), [0.7] * 3,
+                           lights=[light], camera=synthetic.camera(sd, size=24))
+    settings = dict(particles=512, seed=3)
+    beside = []
+    parallel_map = core.rays.parallel_map
+
+    def spy(function, ranges):
+        beside.append(core.rays.on_calling_thread_now())
+        return parallel_map(function, ranges)
+
+    monkeypatch.setattr(core.rays, "parallel_map", spy)
+    overlapped = render(core, data, **settings).passes
+    assert any(beside)   # some of the band's rays were traced beside the gather
+    monkeypatch.setattr(core.rays, "on_calling_thread", lambda busy: contextlib.nullcontext())
+    beside.clear()
+    in_turn = render(core, data, **settings).passes
+    assert not any(beside)
+    for name in ("Combined", "IRAD Direct", "IRAD Indirect"):
+        assert np.array_equal(overlapped[name], in_turn[name]), name
+    assert overlapped["IRAD Indirect"].max() > 0
 
 def test_degenerate_and_nan_triangles_are_skipped_without_nan(core):
     sd = core.scene_data
