@@ -58,37 +58,28 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None,
                                                       segment, tfar, point, start)
                 energy[start:rows] = e[point[start:rows]]
         lit = visible(origin[:rows], segment[:rows], tfar[:rows])
-        E_emitter = _sample_sums(point[:rows], energy[:rows], lit, len(idx)) / count
+        seen, sampled = light_sampling.light_sums(point[:rows], energy[:rows], lit, len(idx))
         unoccluded = (emitter.unoccluded_irradiance(P, N, G) if own_shadow_rays
                       and hasattr(emitter, "unoccluded_irradiance") else None)
-        if unoccluded is not None:
-            E_emitter = _visible_share(unoccluded, E_emitter, point[:rows], energy[:rows],
-                                       lit)
+        E_emitter = (seen / count if unoccluded is None
+                     else _visible_share(unoccluded, seen, sampled, count))
         E[idx] += E_emitter
         if shadow_edges is not None:
             shadow_edges.add(idx, point[:rows], lit, E_emitter)
     return E
 
 
-def _sample_sums(point, energy, keep, points):
-    """(points, 3): the energies of the samples `keep`, summed per point."""
-    return np.stack([np.bincount(point[keep], energy[keep, c], points) for c in range(3)],
-                    -1)
-
-
-def _visible_share(unoccluded, E_visible, point, energy, lit):
+def _visible_share(unoccluded, seen, sampled, count):
     """Direct light as the closed-form unoccluded irradiance times the share of the
     light samples' energy that reaches the point (the ratio estimator of Heitz et al.
     2018, "Combining analytic direct illumination and stochastic shadows", eq. 5):
     exact wherever the light is wholly seen or wholly hidden, so noise is left only in
     penumbrae; consistent, its bias O(1/light samples) where the samples' energies
-    and visibility correlate. Where no sample brought energy, the plain estimate."""
-    weight = energy.sum(1)   # the samples' energies share one colour
-    sampled = np.bincount(point, weight, len(unoccluded))
-    seen = np.bincount(point[lit], weight[lit], len(unoccluded))
-    out = E_visible.copy()
+    and visibility correlate. seen, sampled: light_sampling.light_sums of `count`
+    samples per point; where no sample brought energy, the plain estimate."""
+    out = seen / count
     some = sampled > 0
-    out[some] = unoccluded[some] * (seen[some] / sampled[some])[:, None]
+    out[some] = unoccluded[some] * (seen[some].sum(1) / sampled[some])[:, None]
     return out
 
 

@@ -1,5 +1,6 @@
 """Core maths on scenes made of arrays: furnace energy, determinism, robustness."""
 import contextlib
+import threading
 
 import numpy as np
 import pytest
@@ -97,13 +98,28 @@ def test_work_beside_the_background_gather_changes_nothing(core, monkeypatch):
                            lights=[light], camera=synthetic.camera(sd, size=24))
     settings = dict(particles=512, seed=3)
     beside = []
-    parallel_map = core.rays.parallel_map
+    parallel_map, group_irradiance = core.rays.parallel_map, core.gather.group_irradiance
+    more_indirect_light = core.render.more_indirect_light
+    band_done = threading.Event()
 
     def spy(function, ranges):
         beside.append(core.rays.on_calling_thread_now())
         return parallel_map(function, ranges)
 
+    def slow_gather(*args, **kwargs):   # the workers' tasks wait for the band's thread
+        if threading.current_thread() is not threading.main_thread():
+            band_done.wait(timeout=30)
+        return group_irradiance(*args, **kwargs)
+
+    def then_release(*args, **kwargs):   # the last of the band's work beside the gather
+        try:
+            return more_indirect_light(*args, **kwargs)
+        finally:
+            band_done.set()
+
     monkeypatch.setattr(core.rays, "parallel_map", spy)
+    monkeypatch.setattr(core.gather, "group_irradiance", slow_gather)
+    monkeypatch.setattr(core.render, "more_indirect_light", then_release)
     overlapped = render(core, data, **settings).passes
     assert any(beside)   # some of the band's rays were traced beside the gather
     monkeypatch.setattr(core.rays, "on_calling_thread", lambda busy: contextlib.nullcontext())
