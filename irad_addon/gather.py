@@ -2,7 +2,7 @@
 (shadow rays to light samples) and from the VPLs (one shadow ray per VPL)."""
 import hashlib
 import threading
-from concurrent.futures import Future, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass
 
 import numpy as np
@@ -461,7 +461,7 @@ class PendingIrradiance:
         self.E, self.rays_per_point = E, rays_per_point
         self.traced, self.stop = [], threading.Event()
         if rays.on_calling_thread_now():   # the workers are busy: run here, now
-            self.futures = [_run_now(run, self, t) for t in tasks]
+            self.futures = [rays.run_now(run, self, t) for t in tasks]
         else:
             self.futures = [rays.thread_pool().submit(run, self, t) for t in tasks]
 
@@ -514,16 +514,6 @@ def start_indirect(frame, gb, vpls, min_distance, subset_of_sample, subsets, lig
         E[idx] = scale * E_cut
         cut_sizes[idx] = cut_size
     return PendingIrradiance(E, tasks, run, lambda pending: float(cut_sizes[gb.hit].mean()))
-
-
-def _run_now(function, *args):
-    """A finished Future of function(*args)."""
-    future = Future()
-    try:
-        future.set_result(function(*args))
-    except BaseException as error:   # re-raised by wait(), as a pool task's would be
-        future.set_exception(error)
-    return future
 
 
 def _done(E):

@@ -6,7 +6,7 @@ because embreex releases the GIL inside `run`, so both cores trace at once.
 import hashlib
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -58,6 +58,25 @@ def on_calling_thread_now():
     """Whether parallel_map runs on this thread now (on_calling_thread)."""
     busy = getattr(_calling_thread, "busy", None)
     return busy is not None and busy()
+
+
+def run_now(function, *args):
+    """A finished Future of function(*args), run on this thread."""
+    future = Future()
+    try:
+        future.set_result(function(*args))
+    except BaseException as error:   # re-raised by result(), as a pool task's would be
+        future.set_exception(error)
+    return future
+
+
+def submit_whole(function, *args):
+    """function(*args) as one task on the pool, its own rays on the worker's thread
+    (on_calling_thread): a worker never waits for tasks queued behind it."""
+    def whole():
+        with on_calling_thread():
+            return function(*args)
+    return thread_pool().submit(whole)
 
 
 def parallel_map(function, ranges):

@@ -86,9 +86,9 @@ def test_same_seed_same_image_other_seed_other_noise(core):
 
 
 def test_work_beside_the_background_gather_changes_nothing(core, monkeypatch):
-    # render_band gathers VPL light on the pool's workers while its own thread traces
-    # direct light, the film and the clamp compensation (rays.on_calling_thread): the
-    # image must be the one of the same work done one stage after another.
+    # render_band gathers VPL light, then compensates the clamp, on the pool's workers
+    # while its own thread traces direct light and the film (rays.on_calling_thread):
+    # the image must be the one of the same work done one stage after another.
     sd = core.scene_data
     block = synthetic.closed_box(1, 0.2) + np.array([0.2, 0.0, -0.6], np.float32)
     light = sd.AreaLight(np.array([0.0, 0.0, 0.95]), np.array([0.2, 0, 0]),
@@ -99,7 +99,7 @@ def test_work_beside_the_background_gather_changes_nothing(core, monkeypatch):
     settings = dict(particles=512, seed=3)
     beside = []
     parallel_map, group_irradiance = core.rays.parallel_map, core.gather.group_irradiance
-    more_indirect_light = core.render.more_indirect_light
+    mirrored_light = core.render.mirrored_light
     band_done = threading.Event()
 
     def spy(function, ranges):
@@ -113,16 +113,17 @@ def test_work_beside_the_background_gather_changes_nothing(core, monkeypatch):
 
     def then_release(*args, **kwargs):   # the last of the band's work beside the gather
         try:
-            return more_indirect_light(*args, **kwargs)
+            return mirrored_light(*args, **kwargs)
         finally:
             band_done.set()
 
     monkeypatch.setattr(core.rays, "parallel_map", spy)
     monkeypatch.setattr(core.gather, "group_irradiance", slow_gather)
-    monkeypatch.setattr(core.render, "more_indirect_light", then_release)
+    monkeypatch.setattr(core.render, "mirrored_light", then_release)
     overlapped = render(core, data, **settings).passes
     assert any(beside)   # some of the band's rays were traced beside the gather
-    monkeypatch.setattr(core.rays, "on_calling_thread", lambda busy: contextlib.nullcontext())
+    monkeypatch.setattr(core.rays, "on_calling_thread",
+                        lambda busy=None: contextlib.nullcontext())
     beside.clear()
     in_turn = render(core, data, **settings).passes
     assert not any(beside)
