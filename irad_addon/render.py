@@ -215,7 +215,7 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
                                         lightcuts, budget, seed=(settings.seed, rows[0]))
     # The clamp's compensation queues behind the gather, whole, on a worker.
     compensation = start_compensation(frame, gb, vpls, dmin, subset_of_sample, subsets,
-                                      settings, rows, beside=pending is not None)
+                                      settings, rows, budget, beside=pending is not None)
     try:
         with rays.on_calling_thread(pending.running) if pending else contextlib.nullcontext():
             E_direct, new_film, refined, E_refined = direct_light(
@@ -342,10 +342,11 @@ def mirrored_light(frame, gb, vpls, dmin, subset_of_sample, subsets, settings, r
 
 
 def start_compensation(frame, gb, vpls, dmin, subset_of_sample, subsets, settings, rows,
-                       beside):
-    """A Future of (the irradiance clamping took, as bias_compensation restores it;
-    seconds), on a worker if `beside` (queued behind the gather), else done here; None
-    without bias compensation. Its random numbers are its own generator's, so where it
+                       budget, beside):
+    """A Future of (the irradiance clamping took, as bias_compensation restores it with
+    a VPL gather of `budget` shadow rays per sample where its rays land; seconds), on a
+    worker if `beside` (queued behind the gather), else done here; None without bias
+    compensation. Its random numbers are its own generator's, so where it
     runs does not change the image."""
     if not settings.bias_compensation:
         return None
@@ -354,7 +355,8 @@ def start_compensation(frame, gb, vpls, dmin, subset_of_sample, subsets, setting
     def compensate():
         t = time.perf_counter()
         E = bias_compensation.clamp_residual_irradiance(
-            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng)
+            frame, gb, vpls, dmin, subset_of_sample, subsets, settings.light_samples, rng,
+            shadow_ray_budget=budget, seed=(settings.seed, rows[0], 2))
         return E, time.perf_counter() - t
     return rays.submit_whole(compensate) if beside else rays.run_now(compensate)
 
