@@ -64,7 +64,7 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None,
         E_emitter = (seen / count if unoccluded is None
                      else _visible_share(unoccluded, seen, sampled, count))
         E[idx] += E_emitter
-        if shadow_edges is not None:
+        if shadow_edges is not None and shadow_edges.looks_at(emitter):
             shadow_edges.add(idx, point[:rows], lit, E_emitter)
     return E
 

@@ -191,6 +191,13 @@ class AreaEmitter:
                                              self.axis_v, self.normal, self.ellipse,
                                              self.area, self.radiance, eps, *out)
 
+    def angular_diameter(self, points):
+        """The light's angular size (radians, ~ its diagonal over the distance) seen
+        from the median of `points`."""
+        distance = np.median(np.linalg.norm(points - self.center, axis=1))
+        diagonal = 2 * np.sqrt(self.axis_u @ self.axis_u + self.axis_v @ self.axis_v)
+        return float(diagonal / max(distance, 1e-30))
+
     def unoccluded_irradiance(self, P, N, G):
         """(n, 3) irradiance at points P from the whole light, ignoring occlusion, in
         closed form for rectangles (the expectation of shadow_segments' energies);

@@ -2,6 +2,7 @@
 irradiance of few shading samples on the same surface."""
 import bpy
 import numpy as np
+import pytest
 
 import synthetic
 from benchmarks import metrics, reference, scenes
@@ -136,3 +137,23 @@ def test_soft_penumbrae_are_not_taken_for_hard_edges(addon):
     data.lights[0].radius = 0.3
     soft = np.mean([shadow_edge_render(core, data, seed)[1] for seed in range(2)])
     assert soft < 0.25 * hard, (soft, hard)
+
+
+@pytest.mark.parametrize("half_size, searched", [(0.01, True), (0.3, False)])
+def test_hard_edges_are_looked_for_only_under_small_lights(addon, monkeypatch, half_size,
+                                                           searched):
+    # A square light 2 cm wide casts the panel's hard shadow edge, which gets coverage
+    # samples as the point light's does; one 60 cm wide (~0.6 rad from the walls) casts
+    # penumbrae the shading samples resolve, and its edge search is skipped.
+    core = addon.irad_addon
+    data = box_with_a_panel(core)
+    data.lights[0] = core.scene_data.AreaLight(
+        np.array([0.3, 0.4, 0.6]), np.array([half_size, 0, 0]), np.array([0, half_size, 0]),
+        np.array([0.0, 0.0, -1.0]), np.ones(3), 100.0, "RECTANGLE")
+    added = []
+    add = core.antialiasing.HardShadowEdges.add
+    monkeypatch.setattr(core.antialiasing.HardShadowEdges, "add",
+                        lambda self, *args: added.append(1) or add(self, *args))
+    share = shadow_edge_render(core, data, 0)[1]
+    assert bool(added) == searched
+    assert (share > 0.01) == searched, share
