@@ -186,7 +186,7 @@ def neighbour_pairs(width, height):
 
 class HardShadowEdges:
     """Finds the pixels a hard shadow edge crosses, emitter by emitter, as
-    gather.direct_irradiance computes them (its `shadow_edges`), in memory O(pixels):
+    direct_light.direct_irradiance computes them (its `shadow_edges`), in memory O(pixels):
     per pixel the largest irradiance an emitter gives a fully lit sample with a fully
     shadowed one in the same or a neighbouring pixel (`contrast`), compared with the
     pixel's total when all emitters are done (pixels)."""

@@ -12,7 +12,7 @@ cost anything more than the ray itself: compensation is cheap away from corners.
 """
 import numpy as np
 
-from . import gather, sampling
+from . import direct_light, gather, sampling
 from .gbuffer import take_points, trace_surfaces
 
 # Compensation rays per pixel: at the default clamp (3) much of a corner's light is
@@ -48,7 +48,7 @@ def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample,
     y = take_points(nearby, near)
     weight = np.maximum(0.0, 1.0 - (y.distance.astype(np.float64) / clamp_distance) ** 2)
     # Light leaving y: reflected direct and VPL light (its emission is direct light at x).
-    E_y = (gather.direct_irradiance(frame, y, light_samples, rng, cancel)
+    E_y = (direct_light.direct_irradiance(frame, y, light_samples, rng, cancel)
            + gather.indirect_irradiance(frame, y, vpls, clamp_distance,
                                         subset_of_sample[idx[near]], subsets, cancel,
                                         shadow_ray_budget=shadow_ray_budget, seed=seed))

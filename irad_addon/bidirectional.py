@@ -19,7 +19,7 @@ expected flux equals the candidates'.
 """
 import numpy as np
 
-from . import geometry, gather, sampling, vpl
+from . import direct_light, geometry, sampling, vpl
 from .gbuffer import GBuffer, follow_mirrors, take_points, trace_surfaces
 from .light_tree import morton_codes
 from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
@@ -76,7 +76,7 @@ def reverse_vertices(frame, pilot, per_point, rng):
 def incident_irradiance(frame, points, settings, rng):
     """E(y): direct light with shadow rays, plus indirect light path traced from y."""
     samples = max(settings.light_samples, REVERSE_LIGHT_SAMPLES)
-    return (gather.direct_irradiance(frame, points, samples, rng)
+    return (direct_light.direct_irradiance(frame, points, samples, rng)
             + path_traced_irradiance(frame, points, INCIDENT_PATHS, settings.max_bounces, rng))
 
 
@@ -105,7 +105,7 @@ def path_traced_irradiance(frame, points, paths, max_bounces, rng):
             weight = weight * mirrored
         hit = np.flatnonzero(z.hit)
         z, owner, weight = take_points(z, hit), owner[hit], weight[hit] * z.albedo[hit]
-        np.add.at(E, owner, weight * gather.direct_irradiance(frame, z, PATH_LIGHT_SAMPLES, rng))
+        np.add.at(E, owner, weight * direct_light.direct_irradiance(frame, z, PATH_LIGHT_SAMPLES, rng))
         survive = vpl.russian_roulette_survival(z.albedo)
         live = rng.random(len(owner)) < survive
         owner, weight = owner[live], weight[live] / survive[live, None]

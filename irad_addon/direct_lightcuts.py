@@ -6,13 +6,13 @@ A patch dA of a Lambertian emitter with radiance L lights x with
     L dA cos_l cos_x / d^2 = (flux / pi) cos_l cos_x / d^2,   flux = pi L dA,
 exactly a VPL's term (Keller 1997, eq. 5), so the VPL gather serves unchanged (no
 clamping beyond NEAREST: these points are the light itself). Point, spot and sun
-lights and the world keep their own shadow rays (gather.direct_irradiance).
+lights and the world keep their own shadow rays (direct_light.direct_irradiance).
 """
 from dataclasses import replace
 
 import numpy as np
 
-from . import gather
+from . import direct_light, gather
 from .lights import AreaEmitter, EmissiveMeshEmitter
 from .vpl import VPLs
 
@@ -44,7 +44,7 @@ def direct_irradiance(frame, points, others, gb, light_samples, rng, lightcuts,
                       cancel=None, stats=None):
     """Irradiance (S, 3) from every emitter: the light points `points` (light_points)
     through lightcuts, the `others` frame's emitters with shadow rays."""
-    E = gather.direct_irradiance(others, gb, light_samples, rng, cancel)
+    E = direct_light.direct_irradiance(others, gb, light_samples, rng, cancel)
     if points is not None:
         everyone = np.zeros(len(gb.hit), np.int64)   # no interleaving: the light itself
         E += gather.indirect_irradiance(frame, gb, points, NEAREST * frame.extent, everyone,

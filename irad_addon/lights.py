@@ -186,7 +186,7 @@ class AreaEmitter:
         return position, normal, np.tile(self.power() / count, (count, 1))
 
     def shadow_segments(self, P, N, G, pattern, eps, *out):
-        """gather.direct_irradiance's segments of every sample at once (compiled)."""
+        """direct_light.direct_irradiance's segments of every sample at once (compiled)."""
         return light_sampling.patch_segments(P, N, G, pattern, self.center, self.axis_u,
                                              self.axis_v, self.normal, self.ellipse,
                                              self.area, self.radiance, eps, *out)

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import gather, sampling, vpl
+from . import direct_light, sampling, vpl
 from .light_tree import morton_codes
 from .variant_choice import camera_importance, camera_pilot, luminance, pair_transfer
 
@@ -191,7 +191,7 @@ def relative_pilot(frame, pilot, max_bounces, cap, rng):
     (any positive weight keeps the estimate unbiased)."""
     from .bidirectional import surface_buffer
     points = surface_buffer(pilot.position, pilot.normal, pilot.geo_normal, pilot.albedo)
-    E = gather.direct_irradiance(frame, points, SCOUT_LIGHT_SAMPLES, rng)
+    E = direct_light.direct_irradiance(frame, points, SCOUT_LIGHT_SAMPLES, rng)
     direct = luminance(pilot.albedo * E) / np.pi
     space = PathSpace(frame, pilot, max_bounces, cap)
     indirect = space.evaluate(rng.random((SCOUT, space.dims)))[0].mean() / pilot.count

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import gather
+from . import direct_light, gather
 
 
 @dataclass
@@ -102,7 +102,7 @@ def mirrored_irradiance(frame, gb, vpls, min_distance, subset_of_sample, subsets
         def through(o, d, t, threads=True, plane=plane):
             return visible_through(frame, plane, o, d, t, eps, threads)
 
-        E_direct += plane.reflectance * gather.direct_irradiance(
+        E_direct += plane.reflectance * direct_light.direct_irradiance(
             frame, view, light_samples, rng, cancel, visible=through)
         E_indirect += plane.reflectance * gather.indirect_irradiance(
             frame, view, vpls, min_distance, subset_of_sample, subsets, cancel,

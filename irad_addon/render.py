@@ -5,8 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import (antialiasing, bias_compensation, direct_lightcuts, gather, geometry,
-               interleaving, mirrors, rays, temporal, transfer_reuse, variants)
+from . import (antialiasing, bias_compensation, direct_light, direct_lightcuts, gather,
+               geometry, interleaving, mirrors, rays, temporal, transfer_reuse, variants)
 from .frame import InvalidScene, check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
@@ -218,7 +218,7 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
                                       settings, rows, budget, beside=pending is not None)
     try:
         with rays.on_calling_thread(pending.running) if pending else contextlib.nullcontext():
-            E_direct, new_film, refined, E_refined = direct_light(
+            E_direct, new_film, refined, E_refined = band_direct_light(
                 frame, gb, settings, rows, padded, rng, check, report, tally, light_points,
                 lightcuts, wants_film=kept is None, keeps_film=transfer is not None)
             if new_film is not None:
@@ -275,8 +275,8 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     return {name: image[crop] for name, image in band.items()}
 
 
-def direct_light(frame, gb, settings, rows, padded, rng, check, report, tally, light_points,
-                 lightcuts, wants_film, keeps_film):
+def band_direct_light(frame, gb, settings, rows, padded, rng, check, report, tally,
+                      light_points, lightcuts, wants_film, keeps_film):
     """(E_direct, (film, coverage), refined, E_refined) of a band's shading samples gb:
     direct light, the film G-buffer and its CoverageMap (antialiasing.py; None without
     coverage samples or unless `wants_film`), and the film samples `refined` on hard
@@ -293,7 +293,7 @@ def direct_light(frame, gb, settings, rows, padded, rng, check, report, tally, l
         edges = antialiasing.surface_edges(gb)
         shadow_edges = antialiasing.HardShadowEdges(gb, edges)
     if light_points is None:
-        E_direct = gather.direct_irradiance(frame, gb, settings.light_samples, rng, check,
+        E_direct = direct_light.direct_irradiance(frame, gb, settings.light_samples, rng, check,
                                             shadow_edges=shadow_edges)
     else:
         direct_stats = {}
@@ -320,7 +320,7 @@ def direct_light(frame, gb, settings, rows, padded, rng, check, report, tally, l
         refined = antialiasing.shadow_edge_samples(film, coverage, flagged)
         per_ray = max(1, settings.light_samples * settings.aa_samples
                       // settings.coverage_samples)
-        E_refined = gather.direct_irradiance(   # as many shadow rays per pixel
+        E_refined = direct_light.direct_irradiance(   # as many shadow rays per pixel
             frame, antialiasing.take_samples(film, refined), per_ray, film_rng, check)
         tally.count("shadow_edge_pixels", float(flagged.mean()))
         tally.add("direct", t)

@@ -236,7 +236,7 @@ def test_every_particle_sequence_converges_in_the_furnace(core, sequence):
 
 @pytest.mark.parametrize("shape", ["RECTANGLE", "ELLIPSE"])
 def test_compiled_area_light_segments_are_the_emitters_estimator(core, shape):
-    # gather.direct_irradiance takes an area light's shadow segments from one compiled
+    # direct_light.direct_irradiance takes an area light's shadow segments from one compiled
     # pass; they must be what incident() gives, sample by sample.
     rng = np.random.default_rng(4)
     light = core.lights.AreaEmitter(core.scene_data.AreaLight(
@@ -328,14 +328,14 @@ def test_direct_light_is_noise_free_where_the_whole_area_light_is_seen(core):
     # The noise-free pixels are exactly the analytic irradiance rho/pi * L * factor.
     frame = core.frame.prepare_frame(data, core.rays.RayTracerCache())
     gb = core.gbuffer.build_gbuffer(frame, cam, 1, np.random.default_rng(0))
-    E = core.gather.direct_irradiance(frame, gb, 4, np.random.default_rng(0))
+    E = core.direct_light.direct_irradiance(frame, gb, 4, np.random.default_rng(0))
     exact = frame.emitters[0].unoccluded_irradiance(gb.position, gb.normal, gb.geo_normal)
     visible_all = np.isclose(E[:, 0], exact[:, 0], rtol=1e-9)
     assert visible_all.mean() > 0.5
     # The penumbra's mean converges to the plain (unbiased) estimator's.
-    plain = [core.gather.direct_irradiance(frame, gb, 64, np.random.default_rng(s))
+    plain = [core.direct_light.direct_irradiance(frame, gb, 64, np.random.default_rng(s))
              for s in range(8)]
-    ours = [core.gather.direct_irradiance(frame, gb, 4, np.random.default_rng(100 + s))
+    ours = [core.direct_light.direct_irradiance(frame, gb, 4, np.random.default_rng(100 + s))
             for s in range(64)]
     shaded = ~visible_all & (exact[:, 0] > 0)
     rel = np.abs(np.mean(ours, 0) - np.mean(plain, 0))[shaded, 0].mean() / exact[:, 0].max()
