@@ -1,5 +1,6 @@
 """One frame, end to end: G-buffer, VPLs, direct and indirect gather, passes."""
 import contextlib
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -120,18 +121,23 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     if vpls is None and reuse:
         vpls = vpl_cache.lookup(setup_key)
     variant_info = {}
-    if vpls is None:
+    cam = scene.camera
+    bands = row_bands(cam.height, cam.width, band_samples(settings), settings.interleave)
+    first_gbuffer = None
+    traced = vpls is None
+    if traced and settings.variant in BESIDE_CAMERA_RAYS:
+        vpls, variant_info, first_gbuffer = vpls_beside_camera_rays(
+            frame, settings, variant_state, check, bands[0])
+    elif traced:
         vpls, variant_info = variants.vpls_for_frame(frame, settings, variant_state, check)
-        if reuse:
-            vpl_cache.store(setup_key, vpls)
+    if reuse and traced:
+        vpl_cache.store(setup_key, vpls)
     tally.add("vpls", t)
     if check():
         raise Cancelled()
 
-    cam = scene.camera
     passes = {name: np.zeros((cam.height, cam.width, c), np.float32)
               for name, c in PASS_CHANNELS.items()}
-    bands = row_bands(cam.height, cam.width, band_samples(settings), settings.interleave)
     dmin = clamp_distance(frame, vpls, settings.clamp)
     transfer = reusable_transfer(frame, settings, variant_state, variant_info, vpls)
     if transfer is not None:
@@ -142,7 +148,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
         def band_progress(fraction, message):
             report(0.05 + 0.95 * (number + fraction) / len(bands), message)
         band = render_band(frame, vpls, settings, rows, dmin, check, band_progress, tally,
-                           light_points, transfer)
+                           light_points, transfer, first_gbuffer if number == 0 else None)
         for name, image in band.items():
             passes[name][rows[0]:rows[1]] = image
     result = RenderResult(passes, warnings=warnings)
@@ -155,6 +161,44 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
                     **{f"time_{k}": v for k, v in tally.seconds.items()}}
     result.vpls = vpls
     return result
+
+
+# Variants whose VPLs keep nothing of the camera's samples (incremental IR may keep
+# their transfer): traced on a worker while this thread traces the first band's camera
+# rays (the variants that look through the camera trace their own small pilot).
+BESIDE_CAMERA_RAYS = ('CLASSIC', 'BIDIRECTIONAL', 'METROPOLIS')
+
+
+def vpls_beside_camera_rays(frame, settings, variant_state, check, rows):
+    """(VPLs, variant info, (G-buffer, generator) of the band `rows`): the VPLs are
+    traced whole on a worker while this thread traces the band's camera rays; a cancel
+    seen meanwhile stops the particles' bounces."""
+    stop = threading.Event()
+    job = rays.submit_whole(variants.vpls_for_frame, frame, settings, variant_state,
+                            stop.is_set)
+    try:
+        first_gbuffer = band_gbuffer(frame, settings, rows)
+    finally:
+        if check():
+            stop.set()
+    vpls, variant_info = job.result()
+    return vpls, variant_info, first_gbuffer
+
+
+def band_gbuffer(frame, settings, rows):
+    """(G-buffer, generator) of the shading samples of image rows (first, stop) and
+    their halo: the generator of the band, drawn from for its camera rays first."""
+    cam = frame.scene.camera
+    # One generator per band and seed: the same image for a given seed and band layout.
+    rng = np.random.default_rng([settings.seed, rows[0]])
+    gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded_rows(cam, rows, settings))
+    return gb, rng
+
+
+def padded_rows(cam, rows, settings):
+    """The band's rows and one tile more above and below, for the discontinuity buffer."""
+    halo = settings.interleave if settings.interleave > 1 else 0
+    return max(0, rows[0] - halo), min(cam.height, rows[1] + halo)
 
 
 def reusable_transfer(frame, settings, variant_state, variant_info, vpls):
@@ -174,16 +218,14 @@ def reusable_transfer(frame, settings, variant_state, variant_info, vpls):
 
 
 def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_points=None,
-                transfer=None):
+                transfer=None, prebuilt=None):
     """Passes for image rows (first, stop). The G-buffer reaches one tile further up
     and down so the discontinuity buffer sees whole windows at the band's edges.
-    transfer: (TransferCache, VPL ids) to keep the G-buffers and the VPLs' transfer."""
+    transfer: (TransferCache, VPL ids) to keep the G-buffers and the VPLs' transfer.
+    prebuilt: the band's band_gbuffer, if already traced."""
     cam = frame.scene.camera
     k = max(1, settings.interleave)
-    halo = k if k > 1 else 0
-    padded = (max(0, rows[0] - halo), min(cam.height, rows[1] + halo))
-    # One generator per band and seed: the same image for a given seed and band layout.
-    rng = np.random.default_rng([settings.seed, rows[0]])
+    padded = padded_rows(cam, rows, settings)
 
     t = time.perf_counter()
     report(0.0, "Tracing camera rays")
@@ -191,9 +233,10 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     film = coverage = None
     if kept is not None:   # the same camera, geometry and settings: the same G-buffers
         (gb, film), coverage = kept.gbuffers, kept.coverage
+        rng = np.random.default_rng([settings.seed, rows[0]])
         rng.bit_generator.state = kept.rng_state
     else:
-        gb = build_gbuffer(frame, cam, settings.aa_samples, rng, padded)
+        gb, rng = prebuilt if prebuilt is not None else band_gbuffer(frame, settings, rows)
         first_state = rng.bit_generator.state   # a kept band's frames start here
     tally.add("gbuffer", t)
 
@@ -293,8 +336,8 @@ def band_direct_light(frame, gb, settings, rows, padded, rng, check, report, tal
         edges = antialiasing.surface_edges(gb)
         shadow_edges = antialiasing.HardShadowEdges(gb, edges)
     if light_points is None:
-        E_direct = direct_light.direct_irradiance(frame, gb, settings.light_samples, rng, check,
-                                            shadow_edges=shadow_edges)
+        E_direct = direct_light.direct_irradiance(frame, gb, settings.light_samples, rng,
+                                                  check, shadow_edges=shadow_edges)
     else:
         direct_stats = {}
         E_direct = direct_lightcuts.direct_irradiance(frame, *light_points, gb,

@@ -131,6 +131,31 @@ def test_work_beside_the_background_gather_changes_nothing(core, monkeypatch):
         assert np.array_equal(overlapped[name], in_turn[name]), name
     assert overlapped["IRAD Indirect"].max() > 0
 
+
+@pytest.mark.parametrize("variant", ["CLASSIC", "BIDIRECTIONAL"])
+def test_vpls_traced_beside_the_camera_rays_change_nothing(core, monkeypatch, variant):
+    # render_frame traces these variants' VPLs on a worker while its own thread traces
+    # the first band's camera rays: the image must be the one of one after the other.
+    sd = core.scene_data
+    light = sd.PointLight(np.array([0.2, 0.1, 0.6]), np.ones(3), 100.0, 0.0)
+    data = synthetic.scene(sd, synthetic.closed_box(3), [0.7] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=24))
+    traced_on = []
+    vpls_for_frame = core.variants.vpls_for_frame
+
+    def spy(*args):
+        traced_on.append(threading.current_thread() is threading.main_thread())
+        return vpls_for_frame(*args)
+
+    monkeypatch.setattr(core.variants, "vpls_for_frame", spy)
+    beside = render(core, data, particles=256, seed=2, variant=variant).passes
+    monkeypatch.setattr(core.render, "BESIDE_CAMERA_RAYS", ())
+    in_turn = render(core, data, particles=256, seed=2, variant=variant).passes
+    assert traced_on == [False, True]
+    for name in ("Combined", "IRAD Direct", "IRAD Indirect"):
+        assert np.array_equal(beside[name], in_turn[name]), name
+    assert beside["IRAD Indirect"].max() > 0
+
 def test_degenerate_and_nan_triangles_are_skipped_without_nan(core):
     sd = core.scene_data
     box = synthetic.closed_box(2)
