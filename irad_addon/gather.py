@@ -393,7 +393,8 @@ class PendingIrradiance:
     def __init__(self, E, tasks, run, rays_per_point):
         self.E, self.rays_per_point = E, rays_per_point
         self.traced, self.stop = [], threading.Event()
-        if rays.on_calling_thread_now():   # the workers are busy: run here, now
+        # The workers are busy, or the user asked for one thread: run here, now.
+        if rays.on_calling_thread_now() or rays.worker_count() < 2:
             self.futures = [rays.run_now(run, self, t) for t in tasks]
         else:
             self.futures = [rays.thread_pool().submit(run, self, t) for t in tasks]

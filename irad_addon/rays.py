@@ -72,7 +72,11 @@ def run_now(function, *args):
 
 def submit_whole(function, *args):
     """function(*args) as one task on the pool, its own rays on the worker's thread
-    (on_calling_thread): a worker never waits for tasks queued behind it."""
+    (on_calling_thread): a worker never waits for tasks queued behind it. With one
+    thread (the user's preference) it runs here and now: one thread works at a time."""
+    if worker_count() < 2:
+        return run_now(function, *args)
+
     def whole():
         with on_calling_thread():
             return function(*args)

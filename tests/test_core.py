@@ -156,6 +156,34 @@ def test_vpls_traced_beside_the_camera_rays_change_nothing(core, monkeypatch, va
         assert np.array_equal(beside[name], in_turn[name]), name
     assert beside["IRAD Indirect"].max() > 0
 
+
+def test_one_thread_preference_keeps_the_gather_and_vpls_on_the_render_thread(core,
+                                                                            monkeypatch):
+    # With the user's preference at one thread, nothing runs beside the render thread:
+    # the gather, the compensation and the VPLs wait their turn.
+    sd = core.scene_data
+    light = sd.PointLight(np.array([0.2, 0.1, 0.6]), np.ones(3), 100.0, 0.0)
+    data = synthetic.scene(sd, synthetic.closed_box(3), [0.7] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=16))
+    threads = set()
+    group_irradiance, vpls_for_frame = core.gather.group_irradiance, core.variants.vpls_for_frame
+
+    def spy(function):
+        def run(*args, **kwargs):
+            threads.add(threading.current_thread())
+            return function(*args, **kwargs)
+        return run
+
+    monkeypatch.setattr(core.gather, "group_irradiance", spy(group_irradiance))
+    monkeypatch.setattr(core.variants, "vpls_for_frame", spy(vpls_for_frame))
+    core.rays.set_worker_count(1)
+    try:
+        image = render(core, data, particles=128, seed=1).passes["IRAD Indirect"]
+    finally:
+        core.rays.set_worker_count(0)   # one per CPU core, as the other tests run
+    assert threads == {threading.current_thread()}
+    assert image.max() > 0
+
 def test_degenerate_and_nan_triangles_are_skipped_without_nan(core):
     sd = core.scene_data
     box = synthetic.closed_box(2)
