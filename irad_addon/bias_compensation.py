@@ -4,7 +4,7 @@ presence of weak singularities").
 Clamping replaces the geometry term G by G min(1, d^2 / b^2) for VPLs closer than b.
 The energy it removes is, in solid angle about a receiver x,
     integral of f_x L_o(y) cos_x max(0, 1 - d^2 / b^2) dw,
-which one cosine-distributed ray per camera sample estimates as
+which a cosine-distributed ray from the receiver estimates as
     rho_x L_o(y) max(0, 1 - d^2 / b^2),
 where y is the ray's hit within distance b and L_o(y) the light y reflects, itself
 computed with the (clamped) VPLs and the direct light. Only rays that hit within b
