@@ -8,7 +8,7 @@ import numpy as np
 
 from . import (antialiasing, bias_compensation, direct_light, direct_lightcuts, gather,
                geometry, interleaving, mirrors, rays, temporal, transfer_reuse, variants)
-from .frame import InvalidScene, check_renderable, prepare_frame
+from .frame import check_renderable, prepare_frame
 from .gbuffer import build_gbuffer
 
 
