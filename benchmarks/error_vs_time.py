@@ -201,8 +201,7 @@ def plan_runs(addon, scene, configs, quick, bench):
         ladder = QUICK_PARTICLES if quick else config.particles
         if not config.settings:   # the defaults' own count: DEFAULT_REPEATS runs of it
             default = scene.irad.bl_rna.properties["particles"].default
-            ladder = tuple(sorted(set(ladder) | {default}) + [default] * (DEFAULT_REPEATS - 1))
-            ladder = tuple(sorted(ladder))
+            ladder = tuple(sorted([*set(ladder) - {default}] + [default] * DEFAULT_REPEATS))
         method = f"ours: {config.name}"
         runs[method] = [Run(method, "particles", n, _ours_runner(addon, scene, config, n),
                             _next_factor(ladder, i)) for i, n in enumerate(ladder)]

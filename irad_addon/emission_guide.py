@@ -3,7 +3,7 @@
 A sun's particles start on a disc that covers the whole scene (lights.SunEmitter.emit),
 so in a room lit through a window most of them land on the roof and the outer walls:
 in the sun-lit room of the benchmarks 4% enter, and its few VPLs inside make the image
-noisy. Cycles' light portals say where light enters (lights.Portals); without them a
+noisy. Cycles' light portals say where light enters (portals.Portals); without them a
 pilot finds it. Pilot particles cover the disc; one is useful when its first hit sees
 a point the camera sees (shadow rays to a few camera pilot points). The disc is then
 sampled from a piecewise-constant density over its square of primary samples: high in

@@ -2,6 +2,8 @@
 import numpy as np
 from numba import njit
 
+from . import sampling
+
 
 def triangle_cross(triangles):
     """(v1 - v0) x (v2 - v0): twice the area times the geometric normal."""
@@ -100,3 +102,30 @@ def bounding_sphere(triangles):
     flat = triangles.reshape(-1, 3).astype(np.float64)
     lo, hi = flat.min(0), flat.max(0)
     return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+
+
+def dot_rows(a, b):
+    """Row-wise dot products of (n, 3) arrays."""
+    return np.einsum('ij,ij->i', a, b)
+
+
+def unit_rows(v):
+    """(unit vectors, lengths) of the vectors v (..., 3); zero vectors stay zero."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0), n[..., 0]
+
+
+def patch_area(axis_u, axis_v, ellipse):
+    """Area of a rectangle or ellipse with half-extent vectors axis_u, axis_v."""
+    return np.where(ellipse, np.pi, 4.0) * np.linalg.norm(axis_u, axis=-1) * \
+        np.linalg.norm(axis_v, axis=-1)
+
+
+def patch_points(center, axis_u, axis_v, ellipse, u):
+    """Uniform points on rectangles / ellipses (per row or one for all) from u (n, 2)."""
+    ellipse = np.asarray(ellipse)
+    if ellipse.ndim == 0:   # one shape for all: map only to it
+        uv = sampling.square_to_disk(u) if ellipse else 2.0 * u - 1.0
+    else:
+        uv = np.where(ellipse[..., None], sampling.square_to_disk(u), 2.0 * u - 1.0)
+    return center + uv[:, :1] * axis_u + uv[:, 1:2] * axis_v

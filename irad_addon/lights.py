@@ -8,7 +8,7 @@ Each emitter answers three questions, vectorised over samples:
 Area lights also build direct light's shadow segments for all their samples in one
 compiled pass (shadow_segments), the same estimator as incident.
 
-Sun and world particles enter the scene through its light portals when it has any
+Sun and world particles enter the scene through its light portals (portals.py) when it has any
 (Cycles' portals: area lights with is_portal, e.g. in windows), otherwise through a
 disc or sphere around the whole scene. Portals change only where particles start,
 never the light: they do not emit, block or change the direct light.
@@ -16,39 +16,16 @@ never the light: they do not emit, block or change the direct light.
 import numpy as np
 
 from . import geometry, light_sampling, sampling
-from .scene_data import AreaLight, PointLight, Portal, SpotLight, SunLight
+from .geometry import dot_rows, patch_area, patch_points, unit_rows
+from .portals import usable_portals
+from .scene_data import AreaLight, PointLight, SpotLight, SunLight
 
 INF_DISTANCE = np.float32(1e30)
-
-
-def _dot(a, b):
-    return np.einsum('ij,ij->i', a, b)
-
-
-def _unit(v):
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 0, n, 1.0), n[..., 0]
 
 
 def smoothstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
-
-
-def patch_area(axis_u, axis_v, ellipse):
-    """Area of a rectangle or ellipse with half-extent vectors axis_u, axis_v."""
-    return np.where(ellipse, np.pi, 4.0) * np.linalg.norm(axis_u, axis=-1) * \
-        np.linalg.norm(axis_v, axis=-1)
-
-
-def patch_points(center, axis_u, axis_v, ellipse, u):
-    """Uniform points on rectangles / ellipses (per row or one for all) from u (n, 2)."""
-    ellipse = np.asarray(ellipse)
-    if ellipse.ndim == 0:   # one shape for all: map only to it
-        uv = sampling.square_to_disk(u) if ellipse else 2.0 * u - 1.0
-    else:
-        uv = np.where(ellipse[..., None], sampling.square_to_disk(u), 2.0 * u - 1.0)
-    return center + uv[:, :1] * axis_u + uv[:, 1:2] * axis_v
 
 
 class PointEmitter:
@@ -80,9 +57,9 @@ class PointEmitter:
         return origin, direction, flux
 
     def incident(self, points, normals, u):
-        to_center, dist = _unit(self.position - points)
+        to_center, dist = unit_rows(self.position - points)
         if self.radius == 0:
-            cos_x = np.maximum(_dot(normals, to_center), 0.0)
+            cos_x = np.maximum(dot_rows(normals, to_center), 0.0)
             e = self.intensity * (cos_x / np.maximum(dist * dist, 1e-30) *
                                   self.attenuation(-to_center))[:, None]
             return to_center, dist, e
@@ -100,7 +77,7 @@ class PointEmitter:
         # Distance to the near side of the sphere along the sampled direction.
         disc = np.maximum(self.radius ** 2 - (dist ** 2) * (1.0 - cos_a ** 2), 0.0)
         distance = np.maximum(dist * cos_a - np.sqrt(disc), 0.0)
-        cos_x = np.maximum(_dot(normals, direction), 0.0)
+        cos_x = np.maximum(dot_rows(normals, direction), 0.0)
         e = radiance * (cos_x * solid_angle * self.attenuation(-to_center))[:, None]
         return direction, distance, e
 
@@ -112,9 +89,9 @@ class PointEmitter:
         t, s = sampling.orthonormal_basis(to_center)
         disc = sampling.square_to_disk(u) * self.radius
         sample = self.position + disc[:, :1] * t + disc[:, 1:2] * s
-        direction, dist = _unit(sample - points)
-        cos_disc = np.maximum(_dot(direction, to_center), 0.0)
-        cos_x = np.maximum(_dot(normals, direction), 0.0)
+        direction, dist = unit_rows(sample - points)
+        cos_disc = np.maximum(dot_rows(direction, to_center), 0.0)
+        cos_x = np.maximum(dot_rows(normals, direction), 0.0)
         g = cos_disc * cos_x / np.maximum(dist * dist, 1e-30) * np.pi * self.radius ** 2
         return direction, dist, radiance * (g * self.attenuation(-direction))[:, None]
 
@@ -125,7 +102,7 @@ class SpotEmitter(PointEmitter):
     def __init__(self, light: SpotLight):
         super().__init__(PointLight(light.position, light.color, light.power, light.radius,
                                     light.soft_falloff))
-        self.axis, _ = _unit(np.asarray(light.direction, np.float64))
+        self.axis, _ = unit_rows(np.asarray(light.direction, np.float64))
         self.cos_half = float(np.cos(min(light.spot_size, np.pi) / 2))
         self.smooth = (1.0 - self.cos_half) * float(light.spot_blend)
 
@@ -159,7 +136,7 @@ class AreaEmitter:
         self.center = np.asarray(light.center, np.float64)
         self.axis_u = np.asarray(light.axis_u, np.float64)
         self.axis_v = np.asarray(light.axis_v, np.float64)
-        self.normal, _ = _unit(np.asarray(light.normal, np.float64))
+        self.normal, _ = unit_rows(np.asarray(light.normal, np.float64))
         self.ellipse = light.shape == 'ELLIPSE'
         self.area = float(patch_area(self.axis_u, self.axis_v, self.ellipse))
         self.flux = np.asarray(light.color, np.float64) * light.power
@@ -215,86 +192,12 @@ class AreaEmitter:
         return direction, dist, self.radiance * g[:, None]
 
 
-def usable_portals(portals, bounds):
-    """Portals (Portals) of the scene_data.Portal list with a finite, non-zero area and
-    a direction, or None when there are none (particles then start around the scene)."""
-    def usable(p):
-        numbers = np.concatenate([p.center, p.axis_u, p.axis_v, p.normal]).astype(np.float64)
-        area = patch_area(np.asarray(p.axis_u, np.float64), np.asarray(p.axis_v, np.float64),
-                          p.shape == 'ELLIPSE')
-        return np.isfinite(numbers).all() and area > 0 and np.linalg.norm(p.normal) > 0
-    found = [p for p in portals if isinstance(p, Portal) and usable(p)]
-    return Portals(found, bounds) if found else None
-
-
-class Portals:
-    """The scene's light portals, where sun and world particles enter. A particle is
-    sampled as a line through a portal (a point on it and an inward direction) and
-    starts where that line enters the scene's bounding sphere, so that geometry outside
-    the opening still shadows it."""
-
-    def __init__(self, portals, bounds):
-        def stack(name):
-            return np.array([getattr(p, name) for p in portals], np.float64).reshape(-1, 3)
-        self.center, self.axis_u, self.axis_v = stack('center'), stack('axis_u'), stack('axis_v')
-        self.normal, _ = _unit(stack('normal'))
-        self.ellipse = np.array([p.shape == 'ELLIPSE' for p in portals], bool)
-        self.area = patch_area(self.axis_u, self.axis_v, self.ellipse)
-        self.bounds = bounds
-
-    def choose(self, weights, u):
-        """Portal per particle with probability weights / sum(weights), and that probability."""
-        prob = weights / weights.sum()
-        cdf = np.cumsum(prob)
-        cdf[-1] = 1.0
-        index = np.minimum(np.searchsorted(cdf, u, side='right'), len(cdf) - 1)
-        return index, prob[index]
-
-    def points(self, index, u):
-        return patch_points(self.center[index], self.axis_u[index], self.axis_v[index],
-                            self.ellipse[index], u)
-
-    def inward_crossings(self, index, points, travel):
-        """(n,) portals that each line (through a point on portal `index`, along
-        `travel`) passes inwards. Every one of them samples that line, so each sample
-        is weighted 1 / count: the weights sum to one (Veach 1997, multi-sample MIS)."""
-        cos = travel @ self.normal.T                                    # (n, K)
-        into = cos > 0
-        t = np.einsum('kj,nkj->nk', self.normal, self.center[None] - points[:, None])
-        at = points[:, None] + (t / np.where(into, cos, 1.0))[..., None] * travel[:, None]
-        a, b = (np.einsum('nkj,kj->nk', at - self.center, axis) / _dot(axis, axis)
-                for axis in (self.axis_u, self.axis_v))
-        inside = np.where(self.ellipse, a * a + b * b <= 1.0, np.maximum(abs(a), abs(b)) <= 1.0)
-        crossed = inside & into
-        crossed[np.arange(len(index)), index] = True      # its own portal, despite rounding
-        return crossed.sum(1)
-
-    def entry_points(self, points, travel):
-        """Where the lines through `points` along `travel` enter the scene's bounding
-        sphere (1 % margin): particles start there, before anything outside."""
-        center, radius = self.bounds
-        q = points - center
-        b = _dot(q, travel)
-        t = b + np.sqrt(np.maximum(b * b - _dot(q, q) + (1.01 * radius) ** 2, 0.0))
-        return points - travel * np.maximum(t, 0.0)[:, None]
-
-    def lines(self, weights, u, travel_of):
-        """Particles through the portals: portal chosen by `weights` with u[:, 4], a
-        uniform point on it from u[:, 0:2], travel directions travel_of(index). Returns
-        (start, travel, index, probability of the portal, MIS weight)."""
-        index, prob = self.choose(weights, u[:, 4])
-        point = self.points(index, u[:, 0:2])
-        travel = travel_of(index)
-        share = 1.0 / self.inward_crossings(index, point, travel)
-        return self.entry_points(point, travel), travel, index, prob, share
-
-
 class SunEmitter:
     """Distant light: irradiance S at normal incidence from a cone of angle `angle`,
     i.e. radiance L = S / (pi sin^2(angle / 2)) (docs/radiometry.md)."""
 
     def __init__(self, light: SunLight, bounds, portals=None):
-        self.direction, _ = _unit(np.asarray(light.direction, np.float64))
+        self.direction, _ = unit_rows(np.asarray(light.direction, np.float64))
         self.irradiance = np.asarray(light.color, np.float64) * light.strength
         self.half_angle = min(float(light.angle), np.pi) / 2
         self.cos_half = float(np.cos(self.half_angle))
@@ -361,13 +264,13 @@ class SunEmitter:
         weights = self.portal_weights()
         travel = -self._directions(u[:, 2:4])
         origin, travel, index, prob, share = self.portals.lines(weights, u, lambda i: travel)
-        cos = np.maximum(_dot(travel, self.portals.normal[index]), 0.0)
+        cos = np.maximum(dot_rows(travel, self.portals.normal[index]), 0.0)
         carried = self.cone_gain() * self.portals.area[index] * cos * share / (prob * n)
         return origin, travel, self.irradiance * carried[:, None]
 
     def incident(self, points, normals, u):
         direction = self._directions(u)
-        cos_x = np.maximum(_dot(normals, direction), 0.0)
+        cos_x = np.maximum(dot_rows(normals, direction), 0.0)
         return direction, np.full(len(points), INF_DISTANCE), \
             self.irradiance * (self.cone_gain() * cos_x)[:, None]
 
@@ -469,9 +372,9 @@ class EmissiveMeshEmitter:
 
     def incident(self, points, normals, u):
         index, uv = self._choose(u)
-        direction, dist = _unit(self._point(index, uv) - points)
-        cos_l = np.abs(_dot(self.normals[index], direction))
-        cos_x = np.maximum(_dot(normals, direction), 0.0)
+        direction, dist = unit_rows(self._point(index, uv) - points)
+        cos_l = np.abs(dot_rows(self.normals[index], direction))
+        cos_x = np.maximum(dot_rows(normals, direction), 0.0)
         pdf_area = self.pick[index] / np.maximum(self.areas[index], 1e-300)
         g = cos_l * cos_x / np.maximum(dist * dist, 1e-30) / pdf_area
         # The emitter is geometry too: stop the shadow ray before its surface, further
