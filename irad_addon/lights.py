@@ -15,7 +15,7 @@ never the light: they do not emit, block or change the direct light.
 """
 import numpy as np
 
-from . import geometry, light_sampling, sampling
+from . import geometry, light_sampling, polygon_irradiance, sampling
 from .geometry import dot_rows, patch_area, patch_points, unit_rows
 from .portals import usable_portals
 from .scene_data import AreaLight, PointLight, SpotLight, SunLight
@@ -181,7 +181,7 @@ class AreaEmitter:
         None for ellipses."""
         if self.ellipse:
             return None
-        factor = light_sampling.rectangle_irradiance_factor(
+        factor = polygon_irradiance.rectangle_irradiance_factor(
             P, N, G, self.center, self.axis_u, self.axis_v, self.normal)
         return factor[:, None] * self.radiance
 
