@@ -123,7 +123,7 @@ def fresh_bvh(addon):
     own, as Cycles does (a render with the same settings would reuse the VPLs)."""
     engine = engine_class()
     engine.tracer_cache = addon.irad_addon.rays.RayTracerCache()
-    engine.vpl_cache = type(engine.vpl_cache)()
+    engine.path_window = type(engine.path_window)()
 
 
 def render_ours(addon, scene, settings):

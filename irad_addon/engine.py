@@ -7,7 +7,7 @@ import numpy as np
 from . import extract, preferences, render, variants
 from .frame import InvalidScene
 from .rays import RayTracerCache
-from .temporal import VplCache
+from .temporal import PathWindow
 
 # Extra passes we always write; Depth, Normal and Albedo are added beside them.
 PASSES = [(name, channels) for name, channels in render.PASS_CHANNELS.items()
@@ -27,6 +27,7 @@ def render_settings(scene):
         lightcut_error=irad.lightcut_error, max_cut=irad.max_cut,
         light_samples=irad.light_samples, seed=seed,
         variant=irad.variant, sequence=irad.sequence, temporal_reuse=irad.temporal_reuse,
+        temporal_frames=irad.temporal_frames,
         film_transparent=scene.render.film_transparent)
 
 
@@ -39,8 +40,9 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
     # One BVH cache per engine class: frames of an animation with unchanged geometry
     # reuse the Embree scene instead of rebuilding it.
     tracer_cache = RayTracerCache()
-    # Camera fly-throughs reuse the VPLs while lights and geometry stay the same.
-    vpl_cache = VplCache()
+    # Camera fly-throughs reuse the VPLs while lights and geometry stay the same, or
+    # gather the paths of the last few frames (temporal.PathWindow).
+    path_window = PathWindow()
     # What the last render wrote (pass names, stats): for scripts, the demo and tests.
     last_render = {}
 
@@ -63,7 +65,7 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, message)
             result = render.render_frame(
                 data, render_settings(scene), cancel=self.test_break,
-                progress=self._progress, **self._caches())
+                progress=self._progress, frame_number=scene.frame_current, **self._caches())
         except render.Cancelled:
             return
         except InvalidScene as error:
@@ -87,7 +89,7 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
         """The BVH, VPL and variant caches, unless the user switched caching off."""
         if not preferences.use_cache():
             return {}
-        return {"tracer_cache": self.tracer_cache, "vpl_cache": self.vpl_cache,
+        return {"tracer_cache": self.tracer_cache, "path_window": self.path_window,
                 "variant_state": self.variant_state}
 
     def _fail(self, message, width, height, depsgraph):

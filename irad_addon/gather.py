@@ -26,27 +26,29 @@ class GroupedVPLs:
     scale: np.ndarray
 
 
-def grouped_vpls(count, subsets):
-    """GroupedVPLs of `count` VPLs in `subsets` groups, as vpl_subsets groups them."""
+def grouped_vpls(ids, subsets):
+    """GroupedVPLs of the VPLs with `ids` (VPLs.ids) in `subsets` groups, as
+    vpl_subsets groups them."""
+    count = len(ids)
     if count < subsets:
         first = np.arange(subsets)
         return GroupedVPLs(first % max(count, 1), first, first + 1,
                            np.full(subsets, float(count)))
-    group = np.arange(count) % subsets
+    group = ids % subsets
     sizes = np.bincount(group, minlength=subsets)
     stop = np.cumsum(sizes)
     return GroupedVPLs(np.argsort(group, kind='stable'), stop - sizes, stop, count / sizes)
 
 
 def vpl_subsets(vpls, subsets):
-    """Interleave the VPLs into `subsets` groups (j mod subsets), each group's flux
+    """Interleave the VPLs into `subsets` groups (id mod subsets), each group's flux
     scaled by N / (its size): every group alone estimates the whole set's light, so a
     pixel that sees only a few groups (next to an edge, where the discontinuity buffer
     has few neighbours) is not brighter or darker for the sizes of the groups it sees.
     With fewer VPLs than groups, group k holds VPL k mod N."""
     if vpls.count == 0:
         return []
-    g = grouped_vpls(vpls.count, subsets)
+    g = grouped_vpls(vpls.ids, subsets)
     return [(vpls.subset(g.order[a:b]), float(scale))
             for a, b, scale in zip(g.start, g.stop, g.scale)]
 
@@ -72,7 +74,7 @@ def vpl_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps,
     weight, segments = np.empty(n * m, np.float32), _segments(n * m)
     # One group holding every VPL: pair p * m + v.
     lists = (np.arange(n), np.zeros(n, np.int64), np.zeros(1, np.int64),
-             np.full(1, m, np.int64), np.arange(m))
+             np.full(1, m, np.int64), np.arange(m), np.arange(m))
     flux_weight = np.zeros(m) if flux_weight is None else flux_weight
     count = _group_terms(*lists, *_contiguous(P, N, G, vpl_position, vpl_normal),
                          min_distance2, eps, tracer.center, weight, *segments,
@@ -149,7 +151,7 @@ def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, we
 
 
 @njit(cache=True, nogil=True)
-def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
+def _group_terms(samples, group_of_sample, start, stop, order, identity, P, N, G, Y, NY,
                  min_distance2, eps, centre, weight, origin, direction, distance, cos_vpl,
                  pair, flux_weight, budget, seed):
     """_pair_weight and, for a positive one, _segment for every sample and each VPL of
@@ -157,7 +159,8 @@ def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
     shadow-ray roulette (Arvo & Kirk 1990's Russian roulette on shadow rays, as Ward
     1991 skips the tests of weak lights): a pair whose unoccluded contribution c is
     below S / budget (S: the sample's sum) keeps its ray with probability
-    c budget / S and is weighted by the inverse. Unbiased; at most `budget` rays per
+    c budget / S (hashed from the sample and the VPL's identity) and is weighted by
+    the inverse. Unbiased; at most `budget` rays per
     sample in expectation, and the added variance is below S^2 / budget. S is the
     previous sample's of the same group (a neighbouring pixel), the first one's own.
     The group's VPLs are copied into flat arrays once per group, so that every
@@ -188,7 +191,7 @@ def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
             term = w[j]
             if term > 0:
                 v = order[start[k] + j]
-                term = _roulette(term, term * columns[6, j], bound, s, v, seed)
+                term = _roulette(term, term * columns[6, j], bound, s, identity[v], seed)
                 if term > 0:
                     _, dist2, cos_y = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
                     count = _segment(P, G, Y, s, v, i, dist2, cos_y, eps, centre, origin,
@@ -319,7 +322,7 @@ def grouped_tasks(gb, vpls, subset_of_sample, subsets):
     VPLs facing away from every sample are left out of the groups (no work)."""
     hits = np.flatnonzero(gb.hit)
     hits = hits[np.argsort(subset_of_sample[hits], kind='stable')]
-    g = grouped_vpls(vpls.count, subsets)
+    g = grouped_vpls(vpls.ids, subsets)
     kept = facing_points(vpls, gb.position[hits])[g.order]
     ends = np.concatenate([[0], np.cumsum(kept)])
     g = GroupedVPLs(g.order[kept], ends[g.start], ends[g.stop], g.scale)
@@ -341,7 +344,7 @@ def group_irradiance(samples, pairs, subset_of_sample, groups, gb, vpls, min_dis
     weight, segments = np.empty(pairs, np.float32), _segments(pairs)
     arrays = _contiguous(gb.position, gb.normal, gb.geo_normal, vpls.position, vpls.normal)
     lists = (samples, subset_of_sample, groups.start, groups.stop, groups.order)
-    count = _group_terms(*lists, *arrays, min_distance2, eps, tracer.center, weight, *segments,
+    count = _group_terms(*lists, vpls.ids, *arrays, min_distance2, eps, tracer.center, weight, *segments,
                          np.ascontiguousarray(vpls.flux.mean(1), np.float64), budget, key)
     _shadow_test(weight, segments, count, tracer, eps, visible)
     _group_sums(*lists, groups.scale, weight, np.ascontiguousarray(vpls.flux, np.float64), E)

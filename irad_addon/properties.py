@@ -97,6 +97,13 @@ class IRadSettings(bpy.types.PropertyGroup):
         description="While lights, geometry and these settings stay the same (a camera "
                     "fly-through), render every frame with the same VPLs: faster, and no "
                     "flicker (Keller 1997)")
+    temporal_frames: IntProperty(
+        name="Path Frames", default=_DEFAULT.temporal_frames, min=1, soft_max=16, max=256,
+        description="Classic: gather the particle paths of the last N frames. Each frame "
+                    "traces new particles and keeps the paths of the N - 1 frames before: "
+                    "a camera fly-through reaches N times the particles at the tracing "
+                    "cost of one, and bounce light under moving lights or objects changes "
+                    "smoothly, lagging up to N frames (Keller 1997). 1: this frame's paths")
     seed: IntProperty(name="Seed", default=_DEFAULT.seed, min=0,
                       description="Randomisation of the sample sequences")
     use_animated_seed: BoolProperty(name="Animated Seed", default=False,

@@ -35,6 +35,7 @@ class RenderSettings:
     sequence: str = 'HALTON'     # particle sequence: sampling.SEQUENCES
     film_transparent: bool = False
     temporal_reuse: bool = True  # reuse the last frame's VPLs while lights and geometry stay
+    temporal_frames: int = 1     # N: classic IR gathers the paths of the last N frames
 
 
 @dataclass
@@ -95,9 +96,10 @@ class _Tally:
 
 
 def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
-                 tracer_cache=None, vpls=None, vpl_cache=None,
-                 variant_state=None) -> RenderResult:
-    """Render one frame. `cancel()` is polled; `progress(fraction, message)` reports."""
+                 tracer_cache=None, vpls=None, path_window=None,
+                 variant_state=None, frame_number=None) -> RenderResult:
+    """Render one frame. `cancel()` is polled; `progress(fraction, message)` reports.
+    `path_window` (temporal.PathWindow) keeps VPLs across the frames `frame_number`."""
     report = progress or (lambda fraction, message: None)
     check = cancel or (lambda: False)
     check_renderable(scene)
@@ -115,11 +117,12 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
 
     t = time.perf_counter()
     report(0.02, "Shooting particles")
-    reuse = vpl_cache is not None and settings.temporal_reuse
-    if reuse:
+    window = path_window if settings.temporal_reuse and vpls is None else None
+    batch, frames = 0, window_frames(settings)
+    if window is not None:
         setup_key = temporal.light_setup_key(scene, settings, frame.surfaces_key)
-    if vpls is None and reuse:
-        vpls = vpl_cache.lookup(setup_key)
+        vpls = window.lookup(setup_key, settings, frames, frame_number)
+        batch = window.next_batch
     variant_info = {}
     cam = scene.camera
     bands = row_bands(cam.height, cam.width, band_samples(settings), settings.interleave)
@@ -127,11 +130,12 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     traced = vpls is None
     if traced and settings.variant in BESIDE_CAMERA_RAYS:
         vpls, variant_info, first_gbuffer = vpls_beside_camera_rays(
-            frame, settings, variant_state, check, bands[0])
+            frame, settings, variant_state, check, bands[0], batch)
     elif traced:
-        vpls, variant_info = variants.vpls_for_frame(frame, settings, variant_state, check)
-    if reuse and traced:
-        vpl_cache.store(setup_key, vpls)
+        vpls, variant_info = variants.vpls_for_frame(frame, settings, variant_state, check,
+                                                     batch)
+    if window is not None and traced:
+        vpls = window.store(setup_key, vpls, frames)
     tally.add("vpls", t)
     if check():
         raise Cancelled()
@@ -153,6 +157,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
             passes[name][rows[0]:rows[1]] = image
     result = RenderResult(passes, warnings=warnings)
     result.stats = {"vpls": vpls.count, "triangles": len(frame.triangles),
+                    "path_frames": window.batches if window is not None else 1,
                     "clamp_distance": dmin, "bands": len(bands),
                     "variant": variant_info.get("variant", settings.variant),
                     "variant_reason": variant_info.get("reason", "VPLs of an earlier frame"),
@@ -169,13 +174,19 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
 BESIDE_CAMERA_RAYS = ('CLASSIC', 'BIDIRECTIONAL', 'METROPOLIS')
 
 
-def vpls_beside_camera_rays(frame, settings, variant_state, check, rows):
+def window_frames(settings):
+    """N of the path window: classic IR's paths do not depend on the camera; the other
+    variants' do (or keep their own, incremental), so they keep one frame's."""
+    return max(1, settings.temporal_frames) if settings.variant == 'CLASSIC' else 1
+
+
+def vpls_beside_camera_rays(frame, settings, variant_state, check, rows, batch=0):
     """(VPLs, variant info, (G-buffer, generator) of the band `rows`): the VPLs are
     traced whole on a worker while this thread traces the band's camera rays; a cancel
     seen meanwhile stops the particles' bounces."""
     stop = threading.Event()
     job = rays.submit_whole(variants.vpls_for_frame, frame, settings, variant_state,
-                            stop.is_set)
+                            stop.is_set, batch)
     try:
         first_gbuffer = band_gbuffer(frame, settings, rows)
     finally:

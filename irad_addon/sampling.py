@@ -154,19 +154,22 @@ def hammersley(count, dims, seed=0):
 SEQUENCES = ('HALTON', 'HAMMERSLEY', 'JITTERED')
 
 
-def particle_points(sequence, count, dims, seed):
+def particle_points(sequence, count, dims, seed, batch=0):
     """`count` points in [0,1)^dims for one light's particles (Keller 1997 sec. 3):
     HALTON, scrambled Halton; HAMMERSLEY, i/count in the first dimension (needs the
     count up front); JITTERED, Hammersley with the first dimension jittered inside its
-    stratum (Keller's jittered low-discrepancy sampling)."""
+    stratum (Keller's jittered low-discrepancy sampling). Batch b of a walkthrough's
+    paths continues the Halton indices after batches 0..b-1 (and shifts the first
+    dimension of the others anew), so batches 0..N-1 are one N * count point set."""
+    start = 1 + batch * count
     if sequence == 'HALTON':
-        return halton(count, dims, seed=seed + 1, start=1)
-    rng = np.random.default_rng(seed)
+        return halton(count, dims, seed=seed + 1, start=start)
+    rng = np.random.default_rng([seed, batch] if batch else seed)
     out = np.empty((count, dims))
     jitter = rng.random(count) if sequence == 'JITTERED' else 0.5
     out[:, 0] = (np.arange(count) + jitter) / count
     if dims > 1:
-        out[:, 1:] = halton(count, dims - 1, seed=seed + 1, start=1)
+        out[:, 1:] = halton(count, dims - 1, seed=seed + 1, start=start)
     if sequence == 'HAMMERSLEY':
         out[:, 0] = (out[:, 0] + rng.random()) % 1.0   # Cranley-Patterson in dimension 0
     return out
@@ -177,8 +180,9 @@ class ParticleColumns:
     per light: counts, seeds), computed only for the rows asked: a path draws its
     bounce dimensions only while it lives (most die after a few bounces)."""
 
-    def __init__(self, sequence, counts, seeds, first, dims):
+    def __init__(self, sequence, counts, seeds, first, dims, batch=0):
         self.starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.first_index = 1 + batch * np.asarray(counts, np.int64)   # per block
         self.seeds = list(seeds)
         # particle_points' dimension d is Halton dimension d, or d - 1 where the first
         # dimension is i/count (Hammersley, jittered).
@@ -193,8 +197,9 @@ class ParticleColumns:
         block = np.searchsorted(self.starts, rows, side='right') - 1
         for b in np.unique(block):
             mine = np.flatnonzero(block == b)
-            # particle_points draws Halton indices from 1, with seed + 1.
-            out[mine] = halton_at(rows[mine] - self.starts[b] + 1, self.first + start,
+            # particle_points draws Halton indices from 1 + batch * count, with seed + 1.
+            out[mine] = halton_at(rows[mine] - self.starts[b] + self.first_index[b],
+                                  self.first + start,
                                   stop - start, self.dims, self.seeds[b] + 1)
         return out
 

@@ -52,9 +52,10 @@ def pilot_gbuffer(frame, rng):
     return build_gbuffer(frame, small, 1, rng)
 
 
-def vpls_for_frame(frame, settings, state=None, cancel=None):
+def vpls_for_frame(frame, settings, state=None, cancel=None, batch=0):
     """The VPLs of this frame for `settings.variant`, and the info dict of place_vpls:
-    the one call site for the renderer and the bake."""
+    the one call site for the renderer and the bake. `batch`: classic IR's batch of
+    paths in a walkthrough (temporal.PathWindow)."""
     guide = bool(emission_guide.guidable(frame)) and frame.scene.camera is not None
     # Classic needs no camera pass, unless a sun is guided toward what the camera sees.
     gb = (pilot_gbuffer(frame, np.random.default_rng([settings.seed, 0x9B]))
@@ -63,7 +64,8 @@ def vpls_for_frame(frame, settings, state=None, cancel=None):
         frame = emission_guide.guided_frame(frame, gb, settings.seed)
     if settings.variant == 'CLASSIC':
         return (vpl.trace_vpls(frame, settings.particles, settings.max_bounces,
-                               seed=settings.seed, cancel=cancel, sequence=settings.sequence),
+                               seed=settings.seed, cancel=cancel, sequence=settings.sequence,
+                               batch=batch),
                 {'variant': 'CLASSIC', 'reason': "Classic: chosen in the render settings"})
     return place_vpls(frame, gb, settings, state)
 

@@ -17,6 +17,9 @@ class VPLs:
     normal: np.ndarray     # float64 (M, 3), unit, on the side the light arrived from
     flux: np.ndarray       # float64 (M, 3): power the VPL re-emits [W], albedo applied
     bounce: np.ndarray     # int32 (M,): 1 for the first diffuse hit
+    # int64 (M,) or None: who each VPL is across the frames of a walkthrough
+    # (temporal.PathWindow); its interleaved group and shadow-ray roulette follow it.
+    identity: np.ndarray = field(default=None, repr=False, compare=False)
     # Structures derived from these VPLs (interleaved subsets, light trees), built once
     # per VPL set and shared by every band and every frame that reuses the set.
     derived: dict = field(default_factory=dict, repr=False, compare=False)
@@ -38,9 +41,15 @@ class VPLs:
         return VPLs(*[np.concatenate([getattr(p, name) for p in parts])
                       for name in ('position', 'normal', 'flux', 'bounce')])
 
+    @property
+    def ids(self):
+        """Each VPL's identity: `identity`, or by default its index in the set."""
+        return self.identity if self.identity is not None else np.arange(self.count)
+
     def subset(self, mask_or_index):
         return VPLs(self.position[mask_or_index], self.normal[mask_or_index],
-                    self.flux[mask_or_index], self.bounce[mask_or_index])
+                    self.flux[mask_or_index], self.bounce[mask_or_index],
+                    None if self.identity is None else self.identity[mask_or_index])
 
 
 def particles_per_emitter(emitters, particles):
@@ -70,18 +79,20 @@ def russian_roulette_survival(albedo):
     return np.clip(albedo.mean(1), 0.0, 1.0)
 
 
-def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HALTON'):
+def trace_vpls(frame, particles, max_bounces, seed=0, cancel=None, sequence='HALTON',
+               batch=0):
     """Shoot `particles` light paths and return their diffuse hits as VPLs. Each
-    light's particles get their own block of the low-discrepancy `sequence`."""
+    light's particles get their own block of the low-discrepancy `sequence`; `batch`
+    b continues it after b earlier batches (temporal.PathWindow)."""
     if max_bounces < 1 or not frame.emitters or len(frame.triangles) == 0:
         return VPLs.empty()
     dims = _EMIT_DIMS + _BOUNCE_DIMS * max_bounces
     counts = particles_per_emitter(frame.emitters, particles)
     seeds = [seed + 7919 * i for i in range(len(counts))]
-    points = np.concatenate([sampling.particle_points(sequence, int(n), _EMIT_DIMS, s)
+    points = np.concatenate([sampling.particle_points(sequence, int(n), _EMIT_DIMS, s, batch)
                              for n, s in zip(counts, seeds)])
     origin, direction, flux = emit_particles(frame.emitters, counts, points)
-    bounce_u = sampling.ParticleColumns(sequence, counts, seeds, _EMIT_DIMS, dims)
+    bounce_u = sampling.ParticleColumns(sequence, counts, seeds, _EMIT_DIMS, dims, batch)
     return follow_paths(frame, origin, direction, flux, bounce_u, max_bounces, cancel)[0]
 
 

@@ -33,8 +33,22 @@ class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
 class RENDER_PT_irad_indirect(IRadRenderPanel, bpy.types.Panel):
     bl_label = "Global Illumination"
     properties = ("variant", "particles", "max_bounces", "clamp", "bias_compensation",
-                  "shadow_ray_budget",
-                  "temporal_reuse")
+                  "shadow_ray_budget")
+
+
+class RENDER_PT_irad_walkthrough(IRadRenderPanel, bpy.types.Panel):
+    bl_label = "Reuse Across Frames"
+    bl_parent_id = "RENDER_PT_irad_indirect"
+    properties = ("temporal_frames",)
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.irad, "temporal_reuse", text="")
+
+    def draw(self, context):
+        irad = context.scene.irad
+        # Only classic IR's paths are independent of the camera.
+        self.layout.active = irad.temporal_reuse and irad.variant == 'CLASSIC'
+        super().draw(context)
 
 
 class RENDER_PT_irad_lightcuts(IRadRenderPanel, bpy.types.Panel):
@@ -51,4 +65,5 @@ class RENDER_PT_irad_lightcuts(IRadRenderPanel, bpy.types.Panel):
 
 
 register, unregister = bpy.utils.register_classes_factory(
-    (RENDER_PT_irad_sampling, RENDER_PT_irad_indirect, RENDER_PT_irad_lightcuts))
+    (RENDER_PT_irad_sampling, RENDER_PT_irad_indirect, RENDER_PT_irad_walkthrough,
+     RENDER_PT_irad_lightcuts))

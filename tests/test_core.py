@@ -64,12 +64,20 @@ def test_particle_columns_are_particle_points_drawn_on_demand(core, sequence):
     # the numbers particle_points gives each block up front.
     s = core.sampling
     counts, seeds, dims = [40, 25], [3, 3 + 7919], 23
-    full = np.concatenate([s.particle_points(sequence, n, dims, seed)
-                           for n, seed in zip(counts, seeds)])
-    columns = s.ParticleColumns(sequence, counts, seeds, 5, dims)
-    rows = np.array([64, 0, 39, 40, 41, 7])
-    for a in range(0, dims - 5, 3):
-        np.testing.assert_array_equal(columns[rows, a:a + 3], full[rows, 5 + a:8 + a])
+    for batch in (0, 2):      # a walkthrough's third batch of paths too
+        full = np.concatenate([s.particle_points(sequence, n, dims, seed, batch)
+                               for n, seed in zip(counts, seeds)])
+        columns = s.ParticleColumns(sequence, counts, seeds, 5, dims, batch)
+        rows = np.array([64, 0, 39, 40, 41, 7])
+        for a in range(0, dims - 5, 3):
+            np.testing.assert_array_equal(columns[rows, a:a + 3], full[rows, 5 + a:8 + a])
+
+
+def test_halton_batches_continue_one_sequence(core):
+    # Batches 0..2 of 64 particles are the Halton points 1..192 of one shot of 192.
+    s = core.sampling
+    batches = np.concatenate([s.particle_points("HALTON", 64, 9, 4, b) for b in range(3)])
+    np.testing.assert_array_equal(batches, s.particle_points("HALTON", 192, 9, 4))
 
 
 def test_same_seed_same_image_other_seed_other_noise(core):

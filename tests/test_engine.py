@@ -176,3 +176,30 @@ def test_animation_render_keeps_incremental_vpls_across_frames(scene, addon, mon
         seen = {tuple(p) for p in np.round(a.vpls.position, 9)}
         kept = np.mean([tuple(p) in seen for p in np.round(b.vpls.position, 9)])
         assert kept > 0.5, kept
+
+
+def test_animation_render_gathers_the_last_frames_paths(scene, addon, monkeypatch, tmp_path):
+    # A camera fly-through rendered as an animation with Path Frames 3: the engine's
+    # path window adds a batch of particles per frame until it holds three.
+    core = addon.irad_addon
+    s = scenes.cornell_box("POINT", 16)
+    s.frame_start, s.frame_end = 1, 4
+    camera = s.camera
+    for frame, x in ((1, -0.1), (4, 0.1)):
+        camera.location.x = x
+        camera.keyframe_insert("location", frame=frame)
+    s.render.engine = ENGINE
+    s.render.filepath = str(tmp_path / "frame_")
+    s.irad.particles, s.irad.aa_samples, s.irad.temporal_frames = 128, 1, 3
+    frames = []
+    original = core.render.render_frame
+
+    def recording(*args, **kwargs):
+        frames.append(original(*args, **kwargs))
+        return frames[-1]
+
+    monkeypatch.setattr(core.render, "render_frame", recording)
+    bpy.ops.render.render(animation=True)
+    assert [f.stats["path_frames"] for f in frames] == [1, 2, 3, 3]
+    assert frames[3].vpls is frames[2].vpls        # full and unchanged: reused
+    assert frames[2].vpls.count > 2.5 * frames[0].vpls.count
