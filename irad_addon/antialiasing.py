@@ -212,12 +212,11 @@ class HardShadowEdges:
         seen = self.gb.position[self.gb.hit][::16]   # a median needs few samples
         return len(seen) == 0 or emitter.angular_diameter(seen) < SOFT_LIGHT_ANGLE
 
-    def add(self, idx, point, lit, E):
-        """One emitter's shadow segments: they belong to samples idx[point], `lit` the
-        unoccluded ones; E (len(idx), 3) its irradiance at samples idx."""
+    def add(self, idx, tally, E):
+        """One emitter's shadow segments: tally (len(idx), 2) counts, per sample of idx,
+        its segments and the unoccluded ones; E (len(idx), 3) its irradiance there."""
         gb, count = self.gb, self.gb.width * self.gb.height
-        segments = np.bincount(point, minlength=len(idx))
-        passed = np.bincount(point[lit], minlength=len(idx))
+        segments, passed = tally[:, 0], tally[:, 1]
         state = np.zeros(len(gb.hit), np.int8)    # +1 fully lit, -1 fully shadowed
         state[idx] = np.where(segments == 0, 0, np.where(passed == segments, 1,
                                                           np.where(passed == 0, -1, 0)))

@@ -1,9 +1,11 @@
 """Direct light at G-buffer samples: shadow rays to samples of every emitter, and for
 rectangular area lights their closed-form unoccluded irradiance scaled by the share of
 the samples' light that gets through."""
+import threading
+
 import numpy as np
 
-from . import light_sampling, sampling
+from . import light_sampling, rays, sampling
 
 
 def light_sample_pattern(count, points, rng):
@@ -13,51 +15,73 @@ def light_sample_pattern(count, points, rng):
                                           rng.random((points, 2)))
 
 
+# Points per task of direct_irradiance: each thread writes its tasks' shadow segments
+# (~60 bytes per light sample) into one buffer of its own, reused task after task.
+POINTS_PER_TASK = 1 << 13
+
+
 def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None,
                       shadow_edges=None):
     """Irradiance (S, 3) from every emitter, with shadow rays. `visible(origins,
-    directions, tfar)` replaces the plain shadow-ray test (mirrors.py uses it).
-    shadow_edges: an antialiasing.HardShadowEdges shown each emitter's shadow rays."""
+    directions, tfar)` (world frame) replaces the plain shadow-ray test (mirrors.py
+    uses it). shadow_edges: an antialiasing.HardShadowEdges shown each emitter's
+    shadow rays. Tasks of points run here and on a worker that is free meanwhile
+    (rays.shared_map); the image does not depend on which thread ran what."""
     E = np.zeros((len(gb.hit), 3))
     idx = np.flatnonzero(gb.hit)
-    if len(idx) == 0:
+    if len(idx) == 0 or not frame.emitters:
         return E
     P, N, G = (np.ascontiguousarray(a, np.float64)
                for a in (gb.position[idx], gb.normal[idx], gb.geo_normal[idx]))
-    eps = frame.offset()
-    own_shadow_rays = visible is None
-    if visible is None:
-        visible = lambda o, d, t: ~frame.tracer.occluded(o, d, t)
+    eps, centre = frame.offset(), frame.tracer.center
+    most = max(1 if emitter.delta else light_samples for emitter in frame.emitters)
+    rows = most * min(len(idx), POINTS_PER_TASK)
+    buffers = {}   # thread -> its light_sampling.ShadowSegments
+    parts = [slice(first, first + POINTS_PER_TASK)
+             for first in range(0, len(idx), POINTS_PER_TASK)]
     for emitter in frame.emitters:
         if cancel and cancel():
             return E
-        # Every light sample's segment first, then one shadow-ray batch per emitter.
         count = 1 if emitter.delta else light_samples
-        rows = count * len(idx)
-        origin, segment, tfar = np.empty((rows, 3)), np.empty((rows, 3)), np.empty(rows)
-        point, energy = np.empty(rows, np.int64), np.empty((rows, 3))
         pattern = light_sample_pattern(count, len(idx), rng)
-        if hasattr(emitter, "shadow_segments"):   # a compiled pass for the whole pattern
-            rows = emitter.shadow_segments(P, N, G, pattern, eps, origin, segment, tfar, point,
-                                           energy)
-        else:
-            rows = 0
-            for u in pattern:
-                direction, dist, e = emitter.incident(P, N, u)
-                start = rows
-                rows = light_sampling.shadow_segments(P, G, direction, dist, e, eps, origin,
-                                                      segment, tfar, point, start)
-                energy[start:rows] = e[point[start:rows]]
-        lit = visible(origin[:rows], segment[:rows], tfar[:rows])
-        seen, sampled = light_sampling.light_sums(point[:rows], energy[:rows], lit, len(idx))
-        unoccluded = (emitter.unoccluded_irradiance(P, N, G) if own_shadow_rays
+        seen, sampled = np.zeros((len(idx), 3)), np.zeros(len(idx))
+        tally = np.zeros((len(idx), 2), np.int64)   # per point: segments, unoccluded ones
+
+        def light_task(task):
+            part = parts[task]
+            thread = threading.get_ident()
+            if thread not in buffers:
+                buffers[thread] = light_sampling.ShadowSegments(rows)
+            segments = buffers[thread]
+            n = emitter_segments(emitter, P[part], N[part], G[part], pattern[:, part], eps,
+                                 centre, segments)
+            origin, segment, tfar, point, energy = (a[:n] for a in segments.arrays)
+            lit = (~frame.tracer.occluded(origin, segment, tfar, local=True)
+                   if visible is None else visible(origin + centre, segment, tfar))
+            light_sampling.light_sums(point, energy, lit, seen[part], sampled[part],
+                                      tally[part])
+        rays.shared_map(light_task, len(parts))
+        unoccluded = (emitter.unoccluded_irradiance(P, N, G) if visible is None
                       and hasattr(emitter, "unoccluded_irradiance") else None)
         E_emitter = (seen / count if unoccluded is None
                      else _visible_share(unoccluded, seen, sampled, count))
         E[idx] += E_emitter
         if shadow_edges is not None and shadow_edges.looks_at(emitter):
-            shadow_edges.add(idx, point[:rows], lit, E_emitter)
+            shadow_edges.add(idx, tally, E_emitter)
     return E
+
+
+def emitter_segments(emitter, P, N, G, pattern, eps, centre, segments):
+    """The shadow segments of light samples `pattern` (count, n, 2) of the emitter at
+    points P, into `segments` (light_sampling.ShadowSegments); returns their number."""
+    if hasattr(emitter, "shadow_segments"):   # a compiled pass for the whole pattern
+        return emitter.shadow_segments(P, N, G, pattern, eps, centre, segments)
+    rows = 0
+    for u in pattern:
+        direction, dist, e = emitter.incident(P, N, u)
+        rows = light_sampling.shadow_segments(P, G, direction, dist, e, eps, centre,
+                                              segments, rows)
+    return rows
 
 
 def _visible_share(unoccluded, seen, sampled, count):

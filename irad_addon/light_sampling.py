@@ -42,36 +42,33 @@ def _patch_sample(points, normals, i, u0, u1, center, axis_u, axis_v, light_norm
         else:
             r, phi = b, np.pi / 2 - (np.pi / 4) * (a / (b if b != 0 else 1.0))
         a, b = r * np.cos(phi), r * np.sin(phi)
-    dist2 = 0.0
-    for c in range(3):
-        d = center[c] + a * axis_u[c] + b * axis_v[c] - points[i, c]
-        direction[row, c] = d
-        dist2 += d * d
+    dx = center[0] + a * axis_u[0] + b * axis_v[0] - points[i, 0]
+    dy = center[1] + a * axis_u[1] + b * axis_v[1] - points[i, 1]
+    dz = center[2] + a * axis_u[2] + b * axis_v[2] - points[i, 2]
+    dist2 = dx * dx + dy * dy + dz * dz
     dist = np.sqrt(dist2)
     scale = 1.0 / dist if dist > 0 else 1.0
-    cos_l = cos_x = 0.0
-    for c in range(3):
-        direction[row, c] *= scale
-        cos_l -= direction[row, c] * light_normal[c]
-        cos_x += direction[row, c] * normals[i, c]
+    dx, dy, dz = dx * scale, dy * scale, dz * scale
+    direction[row, 0], direction[row, 1], direction[row, 2] = dx, dy, dz
+    cos_l = -(dx * light_normal[0] + dy * light_normal[1] + dz * light_normal[2])
+    cos_x = dx * normals[i, 0] + dy * normals[i, 1] + dz * normals[i, 2]
     return dist, max(cos_l, 0.0) * max(cos_x, 0.0) / max(dist2, 1e-30) * area
 
 
 def patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, ellipse, area,
-                   radiance, eps, origin, segment, tfar, point, energy):
+                   radiance, eps, centre, segments):
     """shadow_segments of every sample of `pattern` (count, n, 2) on a patch light at
     once (patch_incident's samples, without the intermediate arrays). Returns the rows."""
     return _patch_segments(P, N, G, np.ascontiguousarray(pattern, np.float64),
                            np.asarray(center, np.float64), np.asarray(axis_u, np.float64),
                            np.asarray(axis_v, np.float64),
                            np.asarray(light_normal, np.float64), bool(ellipse), float(area),
-                           np.asarray(radiance, np.float64), eps, origin, segment, tfar,
-                           point, energy)
+                           np.asarray(radiance, np.float64), eps, centre, *segments.arrays)
 
 
 @njit(cache=True, nogil=True)
 def _patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, ellipse, area,
-                    radiance, eps, origin, segment, tfar, point, energy):
+                    radiance, eps, centre, origin, segment, tfar, point, energy):
     count = 0
     if max(radiance[0], radiance[1], radiance[2]) <= 0:
         return count
@@ -83,7 +80,7 @@ def _patch_segments(P, N, G, pattern, center, axis_u, axis_v, light_normal, elli
             if factor > 0 and _above(segment, count, G, i):
                 for c in range(3):
                     energy[count, c] = radiance[c] * factor
-                count = _lift(P, G, i, dist, eps, origin, tfar, point, count)
+                count = _lift(P, G, i, dist, eps, centre, origin, tfar, point, count)
     return count
 
 
@@ -96,45 +93,71 @@ def _above(direction, row, G, i):
 
 
 @njit(cache=True, inline='always')
-def _lift(P, G, i, distance, eps, origin, tfar, which, row):
-    """Segment row `row` starts at point i lifted by eps along G and ends 2 eps short of
-    the light; `which` records the point. Returns row + 1."""
+def _lift(P, G, i, distance, eps, centre, origin, tfar, which, row):
+    """Segment row `row` starts at point i lifted by eps along G (in the tracer's frame:
+    minus its centre) and ends 2 eps short of the light; `which` records the point.
+    Returns row + 1."""
     for c in range(3):
-        origin[row, c] = P[i, c] + G[i, c] * eps
+        origin[row, c] = P[i, c] + G[i, c] * eps - centre[c]
     tfar[row] = distance * (1 - 1e-5) - 2 * eps
     which[row] = i
     return row + 1
 
 
+def shadow_segments(P, G, direction, distance, e, eps, centre, segments, start):
+    """Append, from row `start` of `segments` (a ShadowSegments), the shadow segment of
+    every light sample that brings light (e > 0) from above the geometric surface:
+    origin lifted by eps along G, unit direction, length short of the light by 2 eps,
+    energy e; the segment's point is the sample's row. Returns the next free row."""
+    return _shadow_segments(P, G, np.ascontiguousarray(direction, np.float64),
+                            np.ascontiguousarray(distance, np.float64),
+                            np.ascontiguousarray(e, np.float64), eps, centre,
+                            *segments.arrays, start)
+
+
 @njit(cache=True, nogil=True)
-def shadow_segments(P, G, direction, distance, e, eps, origin, segment, tfar, which, start):
-    """Append, from row `start` of the outputs, the shadow segment of every light
-    sample that brings light (e > 0) from above the geometric surface: origin lifted
-    by eps along G, unit direction, length short of the light by 2 eps; `which` gets
-    the sample's row. Returns the next free row."""
+def _shadow_segments(P, G, direction, distance, e, eps, centre, origin, segment, tfar, which,
+                     energy, start):
     count = start
     for i in range(len(P)):
         if max(e[i, 0], e[i, 1], e[i, 2]) > 0 and _above(direction, i, G, i):
             for c in range(3):
                 segment[count, c] = direction[i, c]
-            count = _lift(P, G, i, distance[i], eps, origin, tfar, which, count)
+                energy[count, c] = e[i, c]
+            count = _lift(P, G, i, distance[i], eps, centre, origin, tfar, which, count)
     return count
 
 
-def light_sums(point, energy, lit, points):
-    """(seen (points, 3), sampled (points,)): per point, the energies of its light
-    samples that reach it, and the sum over channels of all its samples' energies."""
-    seen, sampled = np.zeros((points, 3)), np.zeros(points)
-    _light_sums(point, energy, lit, seen, sampled)
-    return seen, sampled
+class ShadowSegments:
+    """Room for `rows` shadow segments in the tracer's frame (float32, what Embree
+    takes as is): origin, direction, length; and the point each belongs to and the
+    energy it brings if unoccluded."""
+
+    def __init__(self, rows):
+        self.origin, self.segment = np.empty((rows, 3), np.float32), np.empty((rows, 3), np.float32)
+        self.tfar, self.point = np.empty(rows, np.float32), np.empty(rows, np.int64)
+        self.energy = np.empty((rows, 3))
+
+    @property
+    def arrays(self):
+        return self.origin, self.segment, self.tfar, self.point, self.energy
+
+
+def light_sums(point, energy, lit, seen, sampled, tally):
+    """Add, per point, the energies of its light samples that reach it to seen
+    (points, 3), the sum over channels of all its samples' energies to sampled
+    (points,), and its segments and unoccluded segments to tally (points, 2)."""
+    _light_sums(point, energy, lit, seen, sampled, tally)
 
 
 @njit(cache=True, nogil=True)
-def _light_sums(point, energy, lit, seen, sampled):
+def _light_sums(point, energy, lit, seen, sampled, tally):
     for k in range(len(point)):
         i = point[k]
         sampled[i] += energy[k, 0] + energy[k, 1] + energy[k, 2]
+        tally[i, 0] += 1
         if lit[k]:
+            tally[i, 1] += 1
             for c in range(3):
                 seen[i, c] += energy[k, c]
 

@@ -162,11 +162,11 @@ class AreaEmitter:
         normal = np.tile(self.normal, (count, 1))
         return position, normal, np.tile(self.power() / count, (count, 1))
 
-    def shadow_segments(self, P, N, G, pattern, eps, *out):
+    def shadow_segments(self, P, N, G, pattern, eps, centre, segments):
         """direct_light.direct_irradiance's segments of every sample at once (compiled)."""
         return light_sampling.patch_segments(P, N, G, pattern, self.center, self.axis_u,
                                              self.axis_v, self.normal, self.ellipse,
-                                             self.area, self.radiance, eps, *out)
+                                             self.area, self.radiance, eps, centre, segments)
 
     def angular_diameter(self, points):
         """The light's angular size (radians, ~ its diagonal over the distance) seen

@@ -4,6 +4,7 @@ All queries take and return numpy arrays; big batches are split over a thread po
 because embreex releases the GIL inside `run`, so both cores trace at once.
 """
 import hashlib
+import itertools
 import os
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -81,6 +82,30 @@ def submit_whole(function, *args):
         with on_calling_thread():
             return function(*args)
     return thread_pool().submit(whole)
+
+
+def shared_map(function, count):
+    """[function(i) for i in range(count)], run on this thread and on one pool worker
+    if one comes free meanwhile: both take the next i from one counter, so a worker
+    idle beside this thread's serial work shares it, and one busy with queued work (the
+    VPL gather) leaves it all here; a helper not started by the end is withdrawn. Each
+    call's rays run on its own thread (on_calling_thread)."""
+    results, order, stop = [None] * count, itertools.count(), threading.Event()
+
+    def drain():
+        with on_calling_thread():
+            for i in order:
+                if i >= count or stop.is_set():
+                    return
+                results[i] = function(i)
+    helper = (thread_pool().submit(drain) if count > 1 and worker_count() > 1 else None)
+    try:
+        drain()
+    finally:
+        stop.set()
+        if helper is not None and not helper.cancel():
+            helper.result()
+    return results
 
 
 def parallel_map(function, ranges):

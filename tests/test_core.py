@@ -1,5 +1,6 @@
 """Core maths on scenes made of arrays: furnace energy, determinism, robustness."""
 import contextlib
+import time
 import threading
 
 import numpy as np
@@ -192,6 +193,56 @@ def test_one_thread_preference_keeps_the_gather_and_vpls_on_the_render_thread(co
     assert threads == {threading.current_thread()}
     assert image.max() > 0
 
+def test_shared_map_takes_a_free_workers_help_and_never_waits_on_a_busy_one(core):
+    rays = core.rays
+    done_by = {}
+
+    def task(i):
+        time.sleep(0.01)
+        done_by[i] = threading.current_thread()
+        return i * i
+
+    assert rays.shared_map(task, 12) == [i * i for i in range(12)]
+    helpers = {t for t in done_by.values() if t is not threading.current_thread()}
+    assert len(helpers) == 1 and len(set(done_by.values())) == 2   # both took tasks
+    # Workers held by queued work: everything runs here, and the idle helper is
+    # withdrawn instead of waited for.
+    release = threading.Event()
+    held = [rays.thread_pool().submit(release.wait) for _ in range(rays.worker_count())]
+    try:
+        done_by.clear()
+        started = time.perf_counter()
+        assert rays.shared_map(task, 6) == [i * i for i in range(6)]
+        assert set(done_by.values()) == {threading.current_thread()}
+        assert time.perf_counter() - started < 1.0
+    finally:
+        release.set()
+        for future in held:
+            future.result()
+    with pytest.raises(ZeroDivisionError):
+        rays.shared_map(lambda i: 1 // (i - 3), 6)
+
+
+def test_direct_light_does_not_depend_on_the_thread_that_ran_it(core):
+    # direct_irradiance's tasks of points may run on a worker: the same light either way.
+    sd = core.scene_data
+    light = sd.AreaLight(np.array([0.0, 0.0, 0.9]), np.array([0.2, 0, 0]),
+                         np.array([0, 0.2, 0]), np.array([0.0, 0.0, -1.0]), np.ones(3), 50.0,
+                         "RECTANGLE")
+    data = synthetic.scene(sd, synthetic.closed_box(3), [0.7] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=64))
+    frame = core.frame.prepare_frame(data)
+    gb = core.gbuffer.build_gbuffer(frame, data.camera, 4, np.random.default_rng(0))
+    assert gb.hit.sum() >= 2 * core.direct_light.POINTS_PER_TASK   # several tasks
+    shared = core.direct_light.direct_irradiance(frame, gb, 4, np.random.default_rng(1))
+    core.rays.set_worker_count(1)
+    try:
+        alone = core.direct_light.direct_irradiance(frame, gb, 4, np.random.default_rng(1))
+    finally:
+        core.rays.set_worker_count(0)
+    assert np.array_equal(shared, alone) and shared.max() > 0
+
+
 def test_degenerate_and_nan_triangles_are_skipped_without_nan(core):
     sd = core.scene_data
     box = synthetic.closed_box(2)
@@ -309,20 +360,20 @@ def test_compiled_area_light_segments_are_the_emitters_estimator(core, shape):
     G = N + rng.normal(size=(200, 3))   # some light comes through the surface: refused
     G /= np.linalg.norm(G, axis=1, keepdims=True)
     pattern = rng.random((3, 200, 2))
-    fused = [np.empty((600, 3)), np.empty((600, 3)), np.empty(600), np.empty(600, np.int64),
-             np.empty((600, 3))]
-    rows = light.shadow_segments(P, N, G, pattern, 1e-4, *fused)
-    reference = [np.empty((600, 3)), np.empty((600, 3)), np.empty(600), np.empty(600, np.int64)]
-    energy, start = np.empty((600, 3)), 0
+    centre = np.array([0.3, -0.2, 0.1])   # segments are in the tracer's frame
+    fused = core.light_sampling.ShadowSegments(600)
+    rows = light.shadow_segments(P, N, G, pattern, 1e-4, centre, fused)
+    reference, start = core.light_sampling.ShadowSegments(600), 0
     for u in pattern:
         direction, dist, e = light.incident(P, N, u)
-        end = core.light_sampling.shadow_segments(P, G, direction, dist, e, 1e-4, *reference,
-                                                  start)
-        energy[start:end] = e[reference[3][start:end]]
-        start = end
+        start = core.light_sampling.shadow_segments(P, G, direction, dist, e, 1e-4, centre,
+                                                    reference, start)
     assert rows == start and rows > 50
-    for a, b in zip(fused, reference + [energy]):
-        np.testing.assert_allclose(a[:rows], b[:rows], rtol=1e-12, atol=1e-12)
+    for a, b in zip(fused.arrays, reference.arrays):
+        np.testing.assert_allclose(a[:rows], b[:rows], rtol=1e-6, atol=1e-6)
+    point = fused.point[:rows]
+    np.testing.assert_allclose(fused.origin[:rows] + centre, P[point] + 1e-4 * G[point],
+                               rtol=1e-6, atol=1e-6)
 
 
 def test_closed_form_rectangle_irradiance_is_the_samples_expectation(core):
@@ -343,10 +394,9 @@ def test_closed_form_rectangle_irradiance_is_the_samples_expectation(core):
     m = 4096
     pattern = rng.random((m, n, 2))
     rows = m * n
-    out = [np.empty((rows, 3)), np.empty((rows, 3)), np.empty(rows), np.empty(rows, np.int64),
-           np.empty((rows, 3))]
-    rows = light.shadow_segments(P, N, G, pattern, 1e-4, *out)
-    point, energy = out[3][:rows], out[4][:rows, 0]
+    out = core.light_sampling.ShadowSegments(rows)
+    rows = light.shadow_segments(P, N, G, pattern, 1e-4, np.zeros(3), out)
+    point, energy = out.point[:rows], out.energy[:rows, 0]
     mean = np.bincount(point, energy, n) / m
     sd = np.sqrt(np.maximum(np.bincount(point, energy ** 2, n) / m - mean ** 2, 0) / m)
     clipped = ((N @ np.array([0, 0, 1.0])) < 0.9).sum()
