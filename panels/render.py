@@ -16,12 +16,16 @@ class IRadRenderPanel:
         return context.engine in cls.COMPAT_ENGINES
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        col = layout.column()
-        for name in self.properties:
-            col.prop(context.scene.irad, name)
+        draw_properties(self.layout, context.scene.irad, self.properties)
+
+
+def draw_properties(layout, irad, names):
+    """The scene.irad properties `names` in one column, labels beside them."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    col = layout.column()
+    for name in names:
+        col.prop(irad, name)
 
 
 class RENDER_PT_irad_sampling(IRadRenderPanel, bpy.types.Panel):
@@ -48,7 +52,7 @@ class RENDER_PT_irad_walkthrough(IRadRenderPanel, bpy.types.Panel):
         irad = context.scene.irad
         # Only classic IR's paths are independent of the camera.
         self.layout.active = irad.temporal_reuse and irad.variant == 'CLASSIC'
-        super().draw(context)
+        draw_properties(self.layout, irad, self.properties)
 
 
 class RENDER_PT_irad_lightcuts(IRadRenderPanel, bpy.types.Panel):
@@ -61,9 +65,9 @@ class RENDER_PT_irad_lightcuts(IRadRenderPanel, bpy.types.Panel):
 
     def draw(self, context):
         self.layout.active = context.scene.irad.use_lightcuts
-        super().draw(context)
+        draw_properties(self.layout, context.scene.irad, self.properties)
 
 
-register, unregister = bpy.utils.register_classes_factory(
-    (RENDER_PT_irad_sampling, RENDER_PT_irad_indirect, RENDER_PT_irad_walkthrough,
-     RENDER_PT_irad_lightcuts))
+classes = (RENDER_PT_irad_sampling, RENDER_PT_irad_indirect, RENDER_PT_irad_walkthrough,
+           RENDER_PT_irad_lightcuts)
+register, unregister = bpy.utils.register_classes_factory(classes)

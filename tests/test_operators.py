@@ -1,5 +1,6 @@
 """The irad.* operators on real scenes from a background script: bake, clear, re-bake,
 animation, cancel, bad input; the overlay, preferences, sidebar and (un)registration."""
+import dataclasses
 import types
 
 import addon_utils
@@ -352,6 +353,22 @@ def test_sidebar_panels_draw_every_setting_and_button(scene, addon):
         assert name in layout.props
     assert set(layout.operators) == {"irad.bake_lights", "irad.clear_lights",
                                      "irad.bake_animation", "irad.compute_vpls"}
+
+
+def test_render_panels_draw_every_render_setting(scene, addon):
+    # Every setting the engine reads (engine.render_settings) is in a Render Properties
+    # panel or sub-panel header, each with its tooltip.
+    layout = _Layout()
+    for cls in addon.panels.render.classes:
+        assert cls.is_registered and cls.bl_context == "render"
+        panel = types.SimpleNamespace(layout=layout, properties=cls.properties)
+        if hasattr(cls, "draw_header"):
+            cls.draw_header(panel, bpy.context)
+        cls.draw(panel, bpy.context)
+    settings = addon.irad_addon.engine.render_settings(bpy.context.scene)
+    read = {f.name for f in dataclasses.fields(settings)} - {"film_transparent"}
+    assert read <= set(layout.props), read - set(layout.props)
+    assert "temporal_frames" in layout.props and "temporal_reuse" in layout.props
 
 
 def test_register_unregister_cleanly(addon):
