@@ -66,7 +66,25 @@ def machine():
             "blender": bpy.app.version_string,
             "commit": (git("rev-parse", "--short", "HEAD") or "unknown")
             + (" + uncommitted changes in irad_addon/" if dirty else ""),
-            "load_start": "%.1f" % os.getloadavg()[0]}
+            "load_start": "%.1f" % os.getloadavg()[0], "cpu_ticks_start": cpu_ticks()}
+
+
+def cpu_ticks():
+    """(all, stolen) CPU clock ticks since boot from /proc/stat (Linux; else None):
+    'steal' is time the hypervisor gave this VM's virtual CPUs to others."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = [int(v) for v in fh.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    return [sum(fields), fields[7] if len(fields) > 7 else 0]
+
+
+def stolen_share(start, end):
+    """The share of CPU time stolen between two cpu_ticks() readings, or None."""
+    if not start or not end or end[0] <= start[0]:
+        return None
+    return (end[1] - start[1]) / (end[0] - start[0])
 
 
 def error_section(addon, opts, results):
@@ -130,6 +148,8 @@ def main():
         print("scaling (one process per point)", flush=True)
         results["scaling"] = scaling.run(opts["quick"], opts["time_limit"] * 2)
     results["machine"]["load_end"] = "%.1f" % os.getloadavg()[0]
+    results["machine"]["stolen"] = stolen_share(results["machine"].pop("cpu_ticks_start"),
+                                                cpu_ticks())
     results["seconds"] = time.perf_counter() - started
     with open(os.path.join(opts["out"], "results.json"), "w") as fh:
         json.dump(results, fh, indent=1, default=float)

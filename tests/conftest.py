@@ -52,3 +52,18 @@ def scene(addon):
     """An empty scene; read_homefile keeps the add-on registered (factory settings would not)."""
     bpy.ops.wm.read_homefile(use_empty=True)
     return bpy.context.scene
+
+
+@pytest.fixture
+def record(monkeypatch):
+    """record(owner, name) -> a list that gets the result of every call of owner.name
+    (patched for the test), in order."""
+    def install(owner, name):
+        results, original = [], getattr(owner, name)
+
+        def recording(*args, **kwargs):
+            results.append(original(*args, **kwargs))
+            return results[-1]
+        monkeypatch.setattr(owner, name, recording)
+        return results
+    return install

@@ -146,7 +146,7 @@ def test_every_variant_renders_through_the_engine(scene, variant):
     assert stats["variant_reason"]
 
 
-def test_animation_render_keeps_incremental_vpls_across_frames(scene, addon, monkeypatch,
+def test_animation_render_keeps_incremental_vpls_across_frames(scene, addon, record,
                                                                tmp_path):
     # One render job over three frames of a moving light: the engine's VariantState
     # lets incremental IR (Laine et al. 2007) keep the VPLs the light still sees.
@@ -160,15 +160,7 @@ def test_animation_render_keeps_incremental_vpls_across_frames(scene, addon, mon
     s.render.engine = ENGINE
     s.render.filepath = str(tmp_path / "frame_")
     s.irad.variant, s.irad.particles, s.irad.aa_samples = 'INCREMENTAL', 256, 1
-    frames = []
-    original = core.render.render_frame
-
-    def recording(*args, **kwargs):
-        result = original(*args, **kwargs)
-        frames.append(result)
-        return result
-
-    monkeypatch.setattr(core.render, "render_frame", recording)
+    frames = record(core.render, "render_frame")
     bpy.ops.render.render(animation=True)
     assert len(frames) == 3
     assert all(f.stats["variant"] == "INCREMENTAL" for f in frames)
@@ -178,7 +170,7 @@ def test_animation_render_keeps_incremental_vpls_across_frames(scene, addon, mon
         assert kept > 0.5, kept
 
 
-def test_animation_render_gathers_the_last_frames_paths(scene, addon, monkeypatch, tmp_path):
+def test_animation_render_gathers_the_last_frames_paths(scene, addon, record, tmp_path):
     # A camera fly-through rendered as an animation with Path Frames 3: the engine's
     # path window adds a batch of particles per frame until it holds three.
     core = addon.irad_addon
@@ -191,14 +183,7 @@ def test_animation_render_gathers_the_last_frames_paths(scene, addon, monkeypatc
     s.render.engine = ENGINE
     s.render.filepath = str(tmp_path / "frame_")
     s.irad.particles, s.irad.aa_samples, s.irad.temporal_frames = 128, 1, 3
-    frames = []
-    original = core.render.render_frame
-
-    def recording(*args, **kwargs):
-        frames.append(original(*args, **kwargs))
-        return frames[-1]
-
-    monkeypatch.setattr(core.render, "render_frame", recording)
+    frames = record(core.render, "render_frame")
     bpy.ops.render.render(animation=True)
     assert [f.stats["path_frames"] for f in frames] == [1, 2, 3, 3]
     assert frames[3].vpls is frames[2].vpls        # full and unchanged: reused

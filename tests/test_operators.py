@@ -194,19 +194,12 @@ def shared_positions(a, b):
 
 
 @pytest.mark.parametrize("variant", ["INCREMENTAL", "CLASSIC"])
-def test_incremental_animation_bake_keeps_its_vpls_across_frames(scene, core, monkeypatch,
+def test_incremental_animation_bake_keeps_its_vpls_across_frames(scene, core, record,
                                                                   variant):
     scene = animated_cornell()
     scene.frame_end = 4
     scene.irad.variant = variant
-    traced = []
-    original = core.bake.trace
-
-    def recording(*args, **kwargs):
-        traced.append(original(*args, **kwargs))
-        return traced[-1]
-
-    monkeypatch.setattr(core.bake, "trace", recording)
+    traced = record(core.bake, "trace")
     assert bpy.ops.irad.bake_animation() == {'FINISHED'}
     assert len(traced) == 4
     shared = [shared_positions(a.vpls, b.vpls) for a, b in zip(traced, traced[1:])]
