@@ -65,7 +65,8 @@ class InstantRadiosityEngine(bpy.types.RenderEngine):
                 self.report({'WARNING'}, message)
             result = render.render_frame(
                 data, render_settings(scene), cancel=self.test_break,
-                progress=self._progress, frame_number=scene.frame_current, **self._caches())
+                progress=self._progress, frame_number=scene.frame_current,
+                shot=(bpy.data.filepath, scene.name), **self._caches())
         except render.Cancelled:
             return
         except InvalidScene as error:

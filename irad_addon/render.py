@@ -97,9 +97,10 @@ class _Tally:
 
 def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
                  tracer_cache=None, vpls=None, path_window=None,
-                 variant_state=None, frame_number=None) -> RenderResult:
+                 variant_state=None, frame_number=None, shot=None) -> RenderResult:
     """Render one frame. `cancel()` is polled; `progress(fraction, message)` reports.
-    `path_window` (temporal.PathWindow) keeps VPLs across the frames `frame_number`."""
+    `path_window` (temporal.PathWindow) keeps VPLs across the frames `frame_number` of
+    the animation `shot` (any hashable name)."""
     report = progress or (lambda fraction, message: None)
     check = cancel or (lambda: False)
     check_renderable(scene)
@@ -121,7 +122,7 @@ def render_frame(scene, settings: RenderSettings, cancel=None, progress=None,
     batch, frames = 0, window_frames(settings)
     if window is not None:
         setup_key = temporal.light_setup_key(scene, settings, frame.surfaces_key)
-        vpls = window.lookup(setup_key, settings, frames, frame_number)
+        vpls = window.lookup(setup_key, settings, frames, frame_number, shot)
         batch = window.next_batch
     variant_info = {}
     cam = scene.camera

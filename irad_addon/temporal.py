@@ -104,12 +104,17 @@ class PathWindow:
         self._union = None
         self._settings = None
         self._frame = None
+        self._shot = None
         self._next_batch = 0
         self.reused = 0
 
-    def lookup(self, setup_key, settings, frames, frame_number=None):
+    def lookup(self, setup_key, settings, frames, frame_number=None, shot=None):
         """The union to render with, or None: then trace batch `next_batch` and store
-        it. `frames` is N; `frame_number` the scene frame (None: taken as the next)."""
+        it. `frames` is N; `frame_number` the scene frame (None: taken as the next);
+        `shot` names the animation (the engine: .blend file and scene), so that another
+        scene's paths are never kept."""
+        if shot != self._shot:
+            self._shot, self._settings = shot, None
         same_frame = frame_number is not None and frame_number == self._frame
         successive = (frame_number is None or self._frame is None
                       or frame_number == self._frame + 1)

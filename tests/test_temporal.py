@@ -150,6 +150,11 @@ def test_window_starts_anew_on_a_jump_an_edit_or_new_settings(addon):
     assert kept([a, b], [10, 10]) == [2, 1]           # an edit re-rendered on frame 10
     assert kept([b], [11], core.render.RenderSettings(particles=512,
                                                       temporal_frames=3)) == [1]
+    # Another shot (the engine: another scene or .blend) on the next frame number.
+    window.lookup(b"a", settings, 3, 12, shot="scene A")
+    window.store(b"a", core.vpl.VPLs.empty(), 3)
+    assert window.lookup(b"b", settings, 3, 13, shot="scene B") is None
+    assert window.next_batch == 0 and window.batches == 0
     # Bidirectional paths follow the camera: the window keeps one frame's.
     bidir = core.render.RenderSettings(particles=256, temporal_frames=3,
                                        variant='BIDIRECTIONAL')
