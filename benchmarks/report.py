@@ -333,6 +333,10 @@ def throughput_section(results):
              "and replayed through a bare embreex scene (same triangles, robust traversal) "
              "with the same batches: on one thread and on one thread per core (as the gather "
              f"runs). Best of several repeats each, same run. {tp['cpu_count']} CPU threads. "
+             "Each band's gather (`gather.start_indirect`) runs to its end alone on the "
+             "pool before the render goes on, and the clamp compensation (whose own gather "
+             "runs beside the render thread's other work) is off, so the gather's wall time "
+             "and rays are its own. "
              "Pairs are the pixel-VPL pairs `gather.group_irradiance` evaluates (the "
              "exhaustive gather; a lightcut evaluates cut nodes through its own code). "
              "Particles are chosen per configuration for a few million shadow rays.", "",

@@ -1,12 +1,16 @@
 """Throughput ceiling: our VPL gather against raw Embree occlusion queries on the very
 same shadow rays, both measured in one run.
 
-The gather (irad_addon.gather.indirect_irradiance, called by render.render_frame) is
-instrumented from outside: the module functions are wrapped to time the gather and
-count pixel-VPL pairs, and the frame's RayTracer.occluded is wrapped to record every
-shadow-ray batch it traces. The recorded batches are then replayed through a bare
-embreex scene built from the same triangles (no numpy work, no wrapper): once on one
-thread, once on a pool with one thread per core, as the gather uses.
+The gather (irad_addon.gather.start_indirect, which render.render_frame starts on the
+worker threads for every image band) is instrumented from outside: start_indirect is
+wrapped to run each band's gather to its end before the render goes on, so it runs
+alone on the pool and its wall time is the gather's; group_irradiance is wrapped to
+count pixel-VPL pairs, and the frame's RayTracer.occluded to record every shadow-ray
+batch traced meanwhile. The clamp compensation, which gathers VPLs at its own points
+beside the render thread's other work, is off here. The recorded batches are then
+replayed through a bare embreex scene built from the same triangles (no numpy work, no
+wrapper): once on one thread, once on a pool with one thread per core, as the gather
+uses.
 """
 import os
 import threading
@@ -22,13 +26,16 @@ RESOLUTION = 96
 TARGET_RAYS = 4_000_000      # shadow rays per measured gather (~112 MB recorded)
 QUICK_TARGET_RAYS = 1_000_000
 REPEATS = 3
+MOST_PARTICLES = 1 << 20
 # Core RenderSettings per configuration; one whose field does not exist yet is skipped.
 # A missing field set to False is fine: a feature that does not exist is off.
 # The exhaustive gather traces every pair's ray; the default shadow-ray budget skips most
 # (its pairs cost their term without a ray, so its rays/s count those terms too).
 CONFIGS = {"exhaustive gather": {"use_lightcuts": False, "shadow_ray_budget": 0.0},
-           "gather, shadow ray budget 16 (default)": {"use_lightcuts": False},
+           "gather, default shadow-ray budget": {"use_lightcuts": False},
            "lightcuts": {"use_lightcuts": True}}
+# Every configuration: the gather alone (bias_compensation's own gather is left out).
+COMMON = {"bias_compensation": False}
 
 
 class GatherProbe:
@@ -45,28 +52,32 @@ class GatherProbe:
 
     def __enter__(self):
         gather = self.core.gather
-        self._gather, self._groups = gather.indirect_irradiance, gather.group_irradiance
+        self._start, self._groups = gather.start_indirect, gather.group_irradiance
         probe = self
 
-        def indirect(*args, **kwargs):   # called once per image band
+        def start(*args, **kwargs):   # once per image band: its gather, run to the end
             probe._in_gather = True
             t = time.perf_counter()
             try:
-                return probe._gather(*args, **kwargs)
+                pending = probe._start(*args, **kwargs)
+                for future in pending.futures:
+                    future.result()
+                return pending
             finally:
                 probe.gather_seconds[-1] += time.perf_counter() - t
                 probe._in_gather = False
 
         def groups(samples, pairs, *rest, **kwargs):
-            with probe._lock:
-                probe.pairs[-1] += pairs
+            if probe._in_gather:
+                with probe._lock:
+                    probe.pairs[-1] += pairs
             return probe._groups(samples, pairs, *rest, **kwargs)
 
-        gather.indirect_irradiance, gather.group_irradiance = indirect, groups
+        gather.start_indirect, gather.group_irradiance = start, groups
         return self
 
     def __exit__(self, *exc):
-        self.core.gather.indirect_irradiance = self._gather
+        self.core.gather.start_indirect = self._start
         self.core.gather.group_irradiance = self._groups
 
     def wrap_tracer(self, tracer):
@@ -119,12 +130,16 @@ def measure_config(core, data, name, fields, target_rays):
     missing = [k for k, v in fields.items() if not hasattr(defaults, k) and v is not False]
     if missing:
         return {"config": name, "skipped": missing}
-    fields = {k: v for k, v in fields.items() if hasattr(defaults, k)}
+    fields = {k: v for k, v in {**COMMON, **fields}.items() if hasattr(defaults, k)}
     cache = core.rays.RayTracerCache()
     with GatherProbe(core) as probe:
         pilot = probe.render(data, core.render.RenderSettings(**fields, particles=256), cache)
         pairs_per_vpl = probe.pairs[-1] / max(pilot.stats["vpls"], 1)
-        particles = max(16, int(256 * target_rays / max(probe.pairs[-1], 1)))
+        # The pilot's shadow rays (per shading sample, as the render counts them) set
+        # the particle count that traces about target_rays.
+        pilot_rays = (pilot.stats.get("shadow_rays_per_point", 0.0) * defaults.aa_samples
+                      * data.camera.width * data.camera.height)
+        particles = min(MOST_PARTICLES, max(16, int(256 * target_rays / max(pilot_rays, 1))))
         settings = core.render.RenderSettings(**fields, particles=particles)
         probe.wrap_tracer(cache._tracer)
         probe.recording = True
@@ -133,7 +148,7 @@ def measure_config(core, data, name, fields, target_rays):
         batches = probe.batches
         if not batches:
             return {"config": name, "skipped": ["the gather traced no rays through "
-                                                "gather.indirect_irradiance"]}
+                                                "gather.start_indirect"]}
         for _ in range(REPEATS):   # timed without recording
             probe.render(data, settings, cache)
         gather_seconds = min(probe.gather_seconds[-REPEATS:])
