@@ -23,7 +23,7 @@ VPL_RESOLUTION = 64
 TRIANGLE_RESOLUTION = 64
 # Configurations of the VPL sweep (names map to scene.irad settings, as in
 # error_vs_time.CONFIGS); one whose setting does not exist yet is skipped.
-VPL_CONFIGS = {"exhaustive gather": {"use_lightcuts": False},
+VPL_CONFIGS = {"gather, default shadow-ray budget": {"use_lightcuts": False},
                "lightcuts": {"use_lightcuts": True}}
 RESULT_TAG = "SCALING_RESULT "
 
