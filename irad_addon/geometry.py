@@ -6,28 +6,70 @@ from . import sampling
 
 
 def triangle_cross(triangles):
-    """(v1 - v0) x (v2 - v0): twice the area times the geometric normal."""
-    t = triangles.astype(np.float64)
-    return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    """(v1 - v0) x (v2 - v0) in float64: twice the area times the geometric normal."""
+    return _cross_and_length(triangles)[0]
 
 
 def triangle_areas(triangles):
-    return 0.5 * np.linalg.norm(triangle_cross(triangles), axis=1)
+    return 0.5 * _cross_and_length(triangles)[1]
 
 
 def geometric_normals(triangles):
-    c = triangle_cross(triangles)
-    length = np.linalg.norm(c, axis=1, keepdims=True)
-    return c / np.where(length > 0, length, 1.0)
+    cross, length = _cross_and_length(triangles)
+    return cross / np.where(length > 0, length, 1.0)[:, None]
 
 
 def nondegenerate(triangles, extent):
     """Mask of triangles with a usable area and normal: finite, and not slivers whose
     cross product underflows relative to the scene size."""
     finite = np.isfinite(triangles).all(axis=(1, 2))
-    safe = np.where(finite[:, None, None], triangles, 0.0)
-    cross = np.linalg.norm(triangle_cross(safe), axis=1)
-    return finite & (cross > (1e-12 * extent) ** 2)
+    return finite & (_cross_and_length(triangles)[1] > (1e-12 * extent) ** 2)
+
+
+def _cross_and_length(triangles):
+    """(triangle_cross (T, 3), its lengths (T,)) in one compiled pass: numpy's would
+    copy the triangles to float64 and make a temporary per step (a million triangles:
+    ~0.1 s a call instead of ~5 ms)."""
+    triangles = np.ascontiguousarray(triangles).reshape(-1, 3, 3)
+    cross, length = np.empty((len(triangles), 3)), np.empty(len(triangles))
+    _triangle_cross(triangles, cross, length)
+    return cross, length
+
+
+@njit(cache=True, nogil=True)
+def _triangle_cross(triangles, cross, length):
+    for i in range(len(triangles)):
+        ax = np.float64(triangles[i, 1, 0]) - np.float64(triangles[i, 0, 0])
+        ay = np.float64(triangles[i, 1, 1]) - np.float64(triangles[i, 0, 1])
+        az = np.float64(triangles[i, 1, 2]) - np.float64(triangles[i, 0, 2])
+        bx = np.float64(triangles[i, 2, 0]) - np.float64(triangles[i, 0, 0])
+        by = np.float64(triangles[i, 2, 1]) - np.float64(triangles[i, 0, 1])
+        bz = np.float64(triangles[i, 2, 2]) - np.float64(triangles[i, 0, 2])
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        cross[i, 0], cross[i, 1], cross[i, 2] = cx, cy, cz
+        length[i] = np.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+def coordinate_bounds(points):
+    """(lowest, highest) float64 (3,) corners of the box around points (..., 3), in one
+    compiled pass (numpy's min and max along the short axis take ~0.1 s each for a
+    million triangles). Non-finite coordinates are left out."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    _bounds(np.ascontiguousarray(points).reshape(-1, 3), lo, hi)
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _bounds(points, lo, hi):
+    for i in range(len(points)):
+        for c in range(3):
+            v = np.float64(points[i, c])
+            if not np.isfinite(v):
+                continue
+            if v < lo[c]:
+                lo[c] = v
+            if v > hi[c]:
+                hi[c] = v
 
 
 def surface_hits(frame, triangle, barycentric, incoming, hit=None, smooth=True):
@@ -99,8 +141,7 @@ def bounding_sphere(triangles):
     """Centre and radius of a sphere around all triangles (the AABB's)."""
     if len(triangles) == 0:
         return np.zeros(3), 1.0
-    flat = triangles.reshape(-1, 3).astype(np.float64)
-    lo, hi = flat.min(0), flat.max(0)
+    lo, hi = coordinate_bounds(triangles)
     return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
 
 

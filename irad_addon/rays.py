@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import coordinate_bounds
+
 # Rays per thread task: big enough to amortise the Python call, small enough to balance.
 _TASK_RAYS = 1 << 16
 _pool = None
@@ -160,13 +162,13 @@ class RayTracer:
         self.triangles = np.ascontiguousarray(triangles, np.float32)
         self.fingerprint = triangle_fingerprint(self.triangles)
         self.empty = len(self.triangles) == 0
-        flat = self.triangles.reshape(-1, 3)
-        self.extent = float(np.linalg.norm(flat.max(0) - flat.min(0))) if not self.empty else 1.0
-        self.center = (0.5 * (flat.max(0).astype(np.float64) + flat.min(0))
-                       if not self.empty else np.zeros(3))
+        lo, hi = coordinate_bounds(self.triangles) if not self.empty else (np.zeros(3),) * 2
+        self.extent = float(np.linalg.norm(hi - lo)) if not self.empty else 1.0
+        self.center = 0.5 * (lo + hi)
         if not self.empty:
             local = self.to_local(self.triangles.reshape(-1, 3)).reshape(self.triangles.shape)
-            self.magnitude = float(np.abs(local).max())
+            # The largest coordinate in the local frame: half the box's widest side.
+            self.magnitude = float(np.max(np.maximum(hi - self.center, self.center - lo)))
             # Robust (watertight) traversal: rays through shared edges never slip through.
             self._scene = rtcore_scene.EmbreeScene(robust=True)
             mesh_construction.TriangleMesh(self._scene, local)

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .geometry import coordinate_bounds
+
 
 @dataclass
 class Mesh:
@@ -128,8 +130,8 @@ class SceneData:
         """Diagonal of the geometry's bounding box: the scene's length scale."""
         if self.mesh.triangle_count == 0:
             return 1.0
-        flat = self.mesh.triangles.reshape(-1, 3)
-        return float(np.linalg.norm(flat.max(axis=0) - flat.min(axis=0))) or 1.0
+        lo, hi = coordinate_bounds(self.mesh.triangles)
+        return float(np.linalg.norm(hi - lo)) or 1.0
 
 
 def empty_mesh() -> Mesh:

@@ -243,6 +243,32 @@ def test_direct_light_does_not_depend_on_the_thread_that_ran_it(core):
     assert np.array_equal(shared, alone) and shared.max() > 0
 
 
+def test_compiled_triangle_quantities_match_numpy(core):
+    g = core.geometry
+    rng = np.random.default_rng(3)
+    tris = rng.normal(size=(500, 3, 3)) * [1, 2, 3] + 1000.0   # far from the origin
+    tris[7, 2] = tris[7, 1]                                      # a degenerate one
+    for t in (tris, tris.astype(np.float32)):
+        d = t.astype(np.float64)
+        cross = np.cross(d[:, 1] - d[:, 0], d[:, 2] - d[:, 0])
+        np.testing.assert_allclose(g.triangle_cross(t), cross, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(g.triangle_areas(t), 0.5 * np.linalg.norm(cross, axis=1),
+                                   rtol=1e-12, atol=1e-9)
+        normals = g.geometric_normals(t)
+        np.testing.assert_allclose(np.linalg.norm(normals[np.arange(500) != 7], axis=1), 1.0)
+        assert np.all(normals[7] == 0)
+        lo, hi = g.coordinate_bounds(t)
+        np.testing.assert_array_equal(lo, d.reshape(-1, 3).min(0))
+        np.testing.assert_array_equal(hi, d.reshape(-1, 3).max(0))
+    bad = tris.copy()
+    bad[3, 0, 1] = np.nan
+    bad[4, 2, 2] = np.inf
+    keep = g.nondegenerate(bad, 10.0)
+    assert not keep[[3, 4, 7]].any() and keep.sum() == 497
+    lo, hi = g.coordinate_bounds(bad)   # non-finite coordinates are left out
+    assert np.isfinite(lo).all() and np.isfinite(hi).all()
+
+
 def test_degenerate_and_nan_triangles_are_skipped_without_nan(core):
     sd = core.scene_data
     box = synthetic.closed_box(2)
