@@ -60,8 +60,7 @@ class GatherProbe:
             t = time.perf_counter()
             try:
                 pending = probe._start(*args, **kwargs)
-                for future in pending.futures:
-                    future.result()
+                pending.wait()   # done now; the render's own wait returns at once
                 return pending
             finally:
                 probe.gather_seconds[-1] += time.perf_counter() - t

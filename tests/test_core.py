@@ -195,25 +195,30 @@ def test_one_thread_preference_keeps_the_gather_and_vpls_on_the_render_thread(co
 
 def test_shared_map_takes_a_free_workers_help_and_never_waits_on_a_busy_one(core):
     rays = core.rays
-    done_by = {}
+    done_by, took = {}, {True: threading.Event(), False: threading.Event()}
+    here = threading.current_thread()
 
     def task(i):
-        time.sleep(0.01)
+        # Each thread's first task waits (a while at most) until the other has one.
+        mine = threading.current_thread() is here
+        took[mine].set()
+        took[not mine].wait(5.0)
         done_by[i] = threading.current_thread()
         return i * i
 
     assert rays.shared_map(task, 12) == [i * i for i in range(12)]
-    helpers = {t for t in done_by.values() if t is not threading.current_thread()}
-    assert len(helpers) == 1 and len(set(done_by.values())) == 2   # both took tasks
+    helpers = {t for t in done_by.values() if t is not here}
+    assert len(helpers) == 1 and here in done_by.values()   # both took tasks
     # Workers held by queued work: everything runs here, and the idle helper is
     # withdrawn instead of waited for.
     release = threading.Event()
     held = [rays.thread_pool().submit(release.wait) for _ in range(rays.worker_count())]
     try:
         done_by.clear()
+        took[False].set()   # no waiting now: nobody can help
         started = time.perf_counter()
         assert rays.shared_map(task, 6) == [i * i for i in range(6)]
-        assert set(done_by.values()) == {threading.current_thread()}
+        assert set(done_by.values()) == {here}
         assert time.perf_counter() - started < 1.0
     finally:
         release.set()
