@@ -74,7 +74,7 @@ def vpl_transfer(P, N, G, vpl_position, vpl_normal, min_distance2, tracer, eps,
     weight, segments = np.empty(n * m, np.float32), _segments(n * m)
     # One group holding every VPL: pair p * m + v.
     lists = (np.arange(n), np.zeros(n, np.int64), np.zeros(1, np.int64),
-             np.full(1, m, np.int64), np.arange(m), np.arange(m))
+             np.full(1, m, np.int64), np.arange(m))
     flux_weight = np.zeros(m) if flux_weight is None else flux_weight
     count = _group_terms(*lists, *_contiguous(P, N, G, vpl_position, vpl_normal),
                          min_distance2, eps, tracer.center, weight, *segments,
@@ -141,35 +141,37 @@ def _listed_terms(points, lights, P, N, G, Y, NY, min_distance2, eps, centre, we
     count = 0
     for i in range(len(points)):
         s, v = points[i], lights[i]
-        w, dist2, cos_y = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
+        w = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
         w = _roulette(w, w * flux_weight[v], bounds[s], s, v, seed)
         weight[i] = w
         if w > 0:
-            count = _segment(P, G, Y, s, v, i, dist2, cos_y, eps, centre, origin,
-                             direction, distance, cos_vpl, pair, count)
+            count = _segment(P[s], G[s], Y[v], NY[v], i, eps, centre, origin, direction,
+                             distance, cos_vpl, pair, count)
     return count
 
 
 @njit(cache=True, nogil=True)
-def _group_terms(samples, group_of_sample, start, stop, order, identity, P, N, G, Y, NY,
+def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
                  min_distance2, eps, centre, weight, origin, direction, distance, cos_vpl,
                  pair, flux_weight, budget, seed):
     """_pair_weight and, for a positive one, _segment for every sample and each VPL of
-    its group, pair by pair (pair i of weight), with
-    shadow-ray roulette (Arvo & Kirk 1990's Russian roulette on shadow rays, as Ward
-    1991 skips the tests of weak lights): a pair whose unoccluded contribution c is
-    below S / budget (S: the sample's sum) keeps its ray with probability
-    c budget / S (hashed from the sample and the VPL's identity) and is weighted by
-    the inverse. Unbiased; at most `budget` rays per
-    sample in expectation, and the added variance is below S^2 / budget. S is the
-    previous sample's of the same group (a neighbouring pixel), the first one's own.
-    The group's VPLs are copied into flat arrays once per group, so that every
-    sample's terms are one vectorised loop (_unoccluded_terms)."""
+    its group, pair by pair (pair i of weight), with shadow-ray roulette (Arvo & Kirk
+    1990's Russian roulette on shadow rays, as Ward 1991 skips the tests of weak
+    lights): a pair whose unoccluded contribution c is below S / budget (S: the
+    sample's sum) keeps its ray with probability p = c budget / S and is weighted by
+    1 / p. The pairs are drawn by systematic sampling (one uniform per sample, hashed
+    from it: pair j is kept where the running sum of p crosses it), so each pair keeps
+    its probability while a sample's ray count varies by at most one: unbiased, at
+    most `budget` rays per sample in expectation, and less noise than independent
+    draws for as many rays. S is the previous sample's of the same group (a
+    neighbouring pixel), the first one's own. The group's VPLs are copied into flat
+    arrays once per group, so that every sample's terms are one vectorised loop
+    (_kept_terms)."""
     size = 1
     for k in range(len(start)):
         size = max(size, stop[k] - start[k])
     columns = np.empty((7, size))   # the group's VPL x, y, z, normal x, y, z, flux weight
-    w = np.empty(size)
+    w, keep, chosen = np.empty(size), np.empty(size), np.empty(size, np.int64)
     i = count = 0
     group, bound, m = -1, 0.0, 0
     for s in samples:
@@ -182,42 +184,50 @@ def _group_terms(samples, group_of_sample, start, stop, order, identity, P, N, G
                     columns[c, j] = Y[v, c]
                     columns[3 + c, j] = NY[v, c]
                 columns[6, j] = flux_weight[v]
-        total = _unoccluded_terms(P[s, 0], P[s, 1], P[s, 2], N[s, 0], N[s, 1], N[s, 2],
-                                  G[s, 0], G[s, 1], G[s, 2], columns, m, min_distance2, w)
-        if budget > 0 and k != group:
-            bound = total / budget   # the group's first sample: its own sum
+            if budget > 0:   # the group's first sample: its own sum
+                bound = _kept_terms(P[s], N[s], G[s], columns, m, min_distance2, 0.0, w,
+                                    keep) / budget
         group = k
-        for j in range(m):
-            term = w[j]
-            if term > 0:
-                v = order[start[k] + j]
-                term = _roulette(term, term * columns[6, j], bound, s, identity[v], seed)
-                if term > 0:
-                    _, dist2, cos_y = _pair_weight(P, N, G, Y, NY, s, v, min_distance2)
-                    count = _segment(P, G, Y, s, v, i, dist2, cos_y, eps, centre, origin,
-                                     direction, distance, cos_vpl, pair, count)
-            weight[i] = term
-            i += 1
+        # keep: 1 for every positive term without a bound (no roulette).
+        total = _kept_terms(P[s], N[s], G[s], columns, m, min_distance2,
+                            1.0 / bound if bound > 0 else np.inf, w, keep)
+        mark, n = _uniform(s, 0, seed), 0
+        for j in range(m):   # branch-free: the kept pairs' indices into `chosen`
+            mark -= keep[j]
+            kept = mark < 0.0
+            mark += 1.0 if kept else 0.0
+            weight[i + j] = w[j] / keep[j] if kept else 0.0
+            chosen[n] = j
+            n += 1 if kept else 0
+        for q in range(n):
+            j = chosen[q]
+            count = _segment(P[s], G[s], columns[:3, j], columns[3:6, j], i + j, eps,
+                             centre, origin, direction, distance, cos_vpl, pair, count)
+        i += m
         bound = total / budget if budget > 0 else 0.0
     return count
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _unoccluded_terms(px, py, pz, nx, ny, nz, gx, gy, gz, columns, m, min_distance2, out):
+def _kept_terms(p, n, g, columns, m, min_distance2, inv_bound, out, keep):
     """_pair_weight of the point (position p, shading normal n, geometric normal g)
-    with the first m VPLs of `columns` (_group_terms), into out[:m]; returns the sum of
-    the terms times the VPLs' flux weights. Branch-free, so it runs in SIMD lanes."""
+    with the first m VPLs of `columns` (_group_terms) into out[:m], and each pair's
+    probability to keep its shadow ray, min(1, term x flux weight x inv_bound), into
+    keep[:m] (0 for a zero term); returns the sum of the terms times the flux weights.
+    Branch-free, so it runs in SIMD lanes."""
     total = 0.0
     for j in range(m):
-        dx, dy, dz = columns[0, j] - px, columns[1, j] - py, columns[2, j] - pz
+        dx, dy, dz = columns[0, j] - p[0], columns[1, j] - p[1], columns[2, j] - p[2]
         dist2 = max(dx * dx + dy * dy + dz * dz, 1e-30)
-        cos_x = nx * dx + ny * dy + nz * dz
+        cos_x = n[0] * dx + n[1] * dy + n[2] * dz
         cos_y = -(columns[3, j] * dx + columns[4, j] * dy + columns[5, j] * dz)
-        above = gx * dx + gy * dy + gz * dz
+        above = g[0] * dx + g[1] * dy + g[2] * dz
         term = cos_x * cos_y / dist2 / max(dist2, min_distance2)
         term = term if (cos_x > 0) & (cos_y > 0) & (above > 0) else 0.0
         out[j] = term
-        total += term * columns[6, j]
+        contribution = term * columns[6, j]
+        total += contribution
+        keep[j] = min(contribution * inv_bound, 1.0) if term > 0 else 0.0
     return total
 
 
@@ -261,7 +271,7 @@ def _group_sums(samples, group_of_sample, start, stop, order, scale, weight, flu
 
 @njit(cache=True, inline='always')
 def _pair_weight(P, N, G, Y, NY, p, v, min_distance2):
-    """(weight, d^2, cos_y): point p's term from VPL v before visibility,
+    """Point p's term from VPL v before visibility,
     cos_x cos_y / d^2 / max(d^2, dmin^2) with unnormalised cosines (Keller 1997, eq. 5,
     the VPL's cosine lobe); 0 where either faces away or v is below p's surface."""
     dx, dy, dz = Y[v, 0] - P[p, 0], Y[v, 1] - P[p, 1], Y[v, 2] - P[p, 2]
@@ -270,20 +280,25 @@ def _pair_weight(P, N, G, Y, NY, p, v, min_distance2):
     cos_y = -(NY[v, 0] * dx + NY[v, 1] * dy + NY[v, 2] * dz)
     above = G[p, 0] * dx + G[p, 1] * dy + G[p, 2] * dz
     if cos_x <= 0 or cos_y <= 0 or above <= 0:
-        return 0.0, dist2, cos_y
-    return cos_x * cos_y / dist2 / max(dist2, min_distance2), dist2, cos_y
+        return 0.0
+    return cos_x * cos_y / dist2 / max(dist2, min_distance2)
 
 
 @njit(cache=True, inline='always')
-def _segment(P, G, Y, p, v, i, dist2, cos_y, eps, centre, origin, direction, distance,
-             cos_vpl, pair, count):
-    """Shadow segment `count` of pair i, from p lifted off its surface by eps to VPL v,
-    in the tracer's frame (relative to `centre`). Returns count + 1."""
+def _segment(p, g, y, ny, i, eps, centre, origin, direction, distance, cos_vpl, pair,
+             count):
+    """Shadow segment `count` of pair i, from point p (geometric normal g) lifted off
+    its surface by eps to the VPL at y (normal ny), in the tracer's frame (relative to
+    `centre`). Returns count + 1."""
+    dist2 = cos_y = 0.0
     for c in range(3):
-        start = np.float32(P[p, c] + G[p, c] * eps - centre[c])
+        start = np.float32(p[c] + g[c] * eps - centre[c])
         origin[count, c] = start
-        direction[count, c] = np.float32(Y[v, c] - centre[c]) - start
-    length = np.sqrt(dist2)
+        direction[count, c] = np.float32(y[c] - centre[c]) - start
+        gap = y[c] - p[c]
+        dist2 += gap * gap
+        cos_y -= ny[c] * gap
+    length = np.sqrt(max(dist2, 1e-30))
     distance[count], cos_vpl[count], pair[count] = length, cos_y / length, i
     return count + 1
 
@@ -344,7 +359,7 @@ def group_irradiance(samples, pairs, subset_of_sample, groups, gb, vpls, min_dis
     weight, segments = np.empty(pairs, np.float32), _segments(pairs)
     arrays = _contiguous(gb.position, gb.normal, gb.geo_normal, vpls.position, vpls.normal)
     lists = (samples, subset_of_sample, groups.start, groups.stop, groups.order)
-    count = _group_terms(*lists, vpls.ids, *arrays, min_distance2, eps, tracer.center, weight, *segments,
+    count = _group_terms(*lists, *arrays, min_distance2, eps, tracer.center, weight, *segments,
                          np.ascontiguousarray(vpls.flux.mean(1), np.float64), budget, key)
     _shadow_test(weight, segments, count, tracer, eps, visible)
     _group_sums(*lists, groups.scale, weight, np.ascontiguousarray(vpls.flux, np.float64), E)

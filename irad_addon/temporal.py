@@ -71,8 +71,8 @@ BATCH_IDS = 1 << 32
 def scaled_union(batches, numbers):
     """One VPL set of all batches, each batch's flux over their number (each batch
     alone estimates the whole light transport). Each VPL's identity is its batch's
-    `number` and its index there, so that it keeps its interleaved group and
-    shadow-ray roulette while the window slides: only the new batch's noise changes."""
+    `number` and its index there, so that it keeps its interleaved group while the
+    window slides: each pixel keeps gathering the kept batches' same VPLs."""
     union = VPLs.concatenate(batches)
     union.flux /= len(batches)
     union.identity = np.concatenate([number * BATCH_IDS + np.arange(batch.count)

@@ -18,7 +18,7 @@ class VPLs:
     flux: np.ndarray       # float64 (M, 3): power the VPL re-emits [W], albedo applied
     bounce: np.ndarray     # int32 (M,): 1 for the first diffuse hit
     # int64 (M,) or None: who each VPL is across the frames of a walkthrough
-    # (temporal.PathWindow); its interleaved group and shadow-ray roulette follow it.
+    # (temporal.PathWindow); its interleaved group follows it.
     identity: np.ndarray = field(default=None, repr=False, compare=False)
     # Structures derived from these VPLs (interleaved subsets, light trees), built once
     # per VPL set and shared by every band and every frame that reuses the set.

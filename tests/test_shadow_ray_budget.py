@@ -61,3 +61,35 @@ def test_the_budget_bounds_rays_and_noise(gathered):
     relative = budgeted.std(0)[lit] / unoccluded[lit]
     assert np.median(relative) < 1 / np.sqrt(BUDGET), np.median(relative)
     assert np.percentile(relative, 99) < 1.4 / np.sqrt(BUDGET), np.percentile(relative, 99)
+
+
+def test_systematic_draw_keeps_the_ray_count(addon):
+    """The pairs are drawn by systematic sampling: a sample keeps floor or ceil of the
+    sum of its pairs' probabilities, never more, and each pair's share over many
+    draws is its probability."""
+    g = addon.irad_addon.gather
+    rng = np.random.default_rng(3)
+    m, budget = 400, 8.0
+    Y = rng.uniform(-1, 1, (m, 3)) + [0, 0, 2]
+    NY = np.tile([0.0, 0.0, -1.0], (m, 1))
+    P, N = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])
+    flux_weight = rng.uniform(0.1, 1.0, m)
+    terms, keep = np.empty(m), np.empty(m)
+    total = g._kept_terms(P[0], N[0], N[0], np.vstack([Y.T, NY.T, flux_weight]), m, 0.0,
+                          0.0, terms, keep)
+    probability = np.minimum(1.0, terms * flux_weight * budget / total)
+    lists = (np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64),
+             np.full(1, m, np.int64), np.arange(m))
+    counts, kept = [], np.zeros(m)
+    for seed in range(2000):
+        weight, segments = np.empty(m, np.float32), g._segments(m)
+        counts.append(g._group_terms(*lists, P, N, N, Y, NY, 0.0, 0.0, np.zeros(3), weight,
+                                     *segments, flux_weight, budget, seed))
+        kept += weight > 0
+        # A kept pair's weight is its term over its probability.
+        assert np.allclose(weight[weight > 0], (terms / probability)[weight > 0], rtol=1e-4)
+    expected = probability.sum()
+    assert expected <= budget + 1e-9
+    assert set(counts) <= {np.floor(expected), np.ceil(expected)}, (set(counts), expected)
+    assert np.mean(counts) == pytest.approx(expected, rel=0.01)
+    assert np.abs(kept / 2000 - probability).max() < 0.05
