@@ -188,9 +188,9 @@ def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
                 bound = _kept_terms(P[s], N[s], G[s], columns, m, min_distance2, 0.0, w,
                                     keep) / budget
         group = k
-        # keep: 1 for every positive term without a bound (no roulette).
+        # inv_bound 0: no roulette, every positive term keeps its ray.
         total = _kept_terms(P[s], N[s], G[s], columns, m, min_distance2,
-                            1.0 / bound if bound > 0 else np.inf, w, keep)
+                            1.0 / bound if bound > 0 else 0.0, w, keep)
         mark, n = _uniform(s, 0, seed), 0
         for j in range(m):   # branch-free: the kept pairs' indices into `chosen`
             mark -= keep[j]
@@ -212,8 +212,8 @@ def _group_terms(samples, group_of_sample, start, stop, order, P, N, G, Y, NY,
 def _kept_terms(p, n, g, columns, m, min_distance2, inv_bound, out, keep):
     """_pair_weight of the point (position p, shading normal n, geometric normal g)
     with the first m VPLs of `columns` (_group_terms) into out[:m], and each pair's
-    probability to keep its shadow ray, min(1, term x flux weight x inv_bound), into
-    keep[:m] (0 for a zero term); returns the sum of the terms times the flux weights.
+    probability to keep its shadow ray, min(1, term x flux weight x inv_bound) (1
+    where inv_bound is 0: no roulette), into keep[:m] (0 for a zero term); returns the sum of the terms times the flux weights.
     Branch-free, so it runs in SIMD lanes."""
     total = 0.0
     for j in range(m):
@@ -227,7 +227,8 @@ def _kept_terms(p, n, g, columns, m, min_distance2, inv_bound, out, keep):
         out[j] = term
         contribution = term * columns[6, j]
         total += contribution
-        keep[j] = min(contribution * inv_bound, 1.0) if term > 0 else 0.0
+        chance = min(contribution * inv_bound, 1.0) if inv_bound > 0 else 1.0
+        keep[j] = chance if term > 0 else 0.0
     return total
 
 
