@@ -14,6 +14,10 @@ from . import lightcuts as lightcuts_module
 # Pixel-VPL pairs per gather task: bounds the float32 temporaries (~10 arrays of
 # this many elements per thread) while keeping each Embree call large.
 PAIRS_PER_TASK = 1 << 18
+# Gather tasks of a band at least, enough to share the cores. Not from the thread
+# count: each task's first sample bounds its roulette by its own sum, so the split
+# shows in the image, which must not depend on the threads that made it.
+TASKS_AT_LEAST = 16
 
 
 @dataclass
@@ -334,7 +338,7 @@ def facing_points(vpls, points):
 
 def grouped_tasks(gb, vpls, subset_of_sample, subsets):
     """(GroupedVPLs, tasks): the hit samples sorted by interleaved group and split into
-    (samples, pairs) tasks of about PAIRS_PER_TASK pairs, a few per thread at least.
+    (samples, pairs) tasks of about PAIRS_PER_TASK pairs, TASKS_AT_LEAST at least.
     VPLs facing away from every sample are left out of the groups (no work)."""
     hits = np.flatnonzero(gb.hit)
     hits = hits[np.argsort(subset_of_sample[hits], kind='stable')]
@@ -344,7 +348,7 @@ def grouped_tasks(gb, vpls, subset_of_sample, subsets):
     g = GroupedVPLs(g.order[kept], ends[g.start], ends[g.stop], g.scale)
     pairs = np.cumsum((g.stop - g.start)[subset_of_sample[hits]])
     total = int(pairs[-1])
-    pieces = max(-(-total // PAIRS_PER_TASK), 4 * rays.worker_count())
+    pieces = max(-(-total // PAIRS_PER_TASK), TASKS_AT_LEAST)
     cuts = np.searchsorted(pairs, total * np.arange(1, pieces) / pieces, side='right')
     bounds = np.unique(np.concatenate([[0], cuts, [len(hits)]]))
     before = np.concatenate([[0], pairs])

@@ -228,6 +228,26 @@ def test_shared_map_takes_a_free_workers_help_and_never_waits_on_a_busy_one(core
         rays.shared_map(lambda i: 1 // (i - 3), 6)
 
 
+def test_the_image_does_not_depend_on_the_thread_count(core):
+    # VPLs, gather, compensation and direct light run on workers beside the render
+    # thread, in tasks of their own: the same image as on one thread.
+    sd = core.scene_data
+    light = sd.AreaLight(np.array([0.0, 0.0, 0.9]), np.array([0.3, 0, 0]),
+                         np.array([0, 0.3, 0]), np.array([0.0, 0.0, -1.0]), np.ones(3), 50.0,
+                         "RECTANGLE")
+    panel = synthetic.grid_quad(2, 0.4).astype(np.float64) + [0.0, 0.0, -0.3]
+    triangles = np.concatenate([synthetic.closed_box(3), panel.astype(np.float32)])
+    data = synthetic.scene(sd, triangles, [0.7] * 3, lights=[light],
+                           camera=synthetic.camera(sd, size=48))
+    shared = render(core, data, particles=256, seed=2).passes["Combined"]
+    core.rays.set_worker_count(1)
+    try:
+        alone = render(core, data, particles=256, seed=2).passes["Combined"]
+    finally:
+        core.rays.set_worker_count(0)
+    assert np.array_equal(shared, alone) and shared.max() > 0
+
+
 def test_direct_light_does_not_depend_on_the_thread_that_ran_it(core):
     # direct_irradiance's tasks of points may run on a worker: the same light either way.
     sd = core.scene_data
