@@ -280,5 +280,9 @@ def test_guided_room_matches_cycles_with_less_error(core, cycles_room):
                 images.append(render(core, data, plain, 2048, seed))
         error[name] = (np.mean([metrics.relmse(i, cycles_room) for i in images]),
                        metrics.relative_bias(np.mean(images, 0), cycles_room))
-    assert error["guided"][0] < 0.4 * error["around"][0]
+    # Guiding keeps its VPLs where the sun's light lands: ~2.5x less error than as
+    # many shot around the room, and (since roulette plays on the largest albedo, not
+    # the mean) under 0.0055 on its own (0.0066 with the mean's brighter survivors).
+    assert error["guided"][0] < 0.45 * error["around"][0]
+    assert error["guided"][0] < 0.0055
     assert abs(error["guided"][1]) < 0.015
