@@ -31,6 +31,31 @@ def test_furnace_radiance_is_emission_over_one_minus_albedo(core, albedo):
     assert image.mean() == pytest.approx(1.0 / (1.0 - albedo), rel=0.01)
 
 
+def test_particle_roulette_keeps_every_first_bounce_and_never_brightens_a_channel(core):
+    # A closed red box: every particle hits it, and every first hit goes on (no roulette
+    # there); later survivors are divided by the largest albedo (0.6), so no VPL of a
+    # particle carries more red than the particle brought (the mean, 0.23, would make
+    # them 2.6x brighter per bounce). Bounce 3 keeps about 0.6 of bounce 2.
+    sd = core.scene_data
+    light = sd.PointLight(np.array([0.1, 0.2, 0.0]), np.ones(3), 100.0, 0.0)
+    albedo = [0.6, 0.05, 0.05]
+    data = synthetic.scene(sd, synthetic.closed_box(3), albedo, lights=[light],
+                           camera=synthetic.camera(sd, size=8))
+    frame = core.frame.prepare_frame(data)
+    n = 4096
+    vpls = core.vpl.trace_vpls(frame, n, 8, seed=0)
+    per_bounce = np.bincount(vpls.bounce, minlength=4)
+    assert per_bounce[1] == n
+    assert per_bounce[2] >= 0.98 * n    # all but those leaving below the surface
+    assert per_bounce[3] == pytest.approx(0.6 * per_bounce[2], rel=0.05)
+    first = vpls.flux[vpls.bounce == 1, 0].max()
+    assert vpls.flux[:, 0].max() <= first * (1 + 1e-9)
+    # Unbiased: each bounce carries albedo times the one before, in every channel.
+    carried = np.array([vpls.flux[vpls.bounce == b].sum(0) for b in (1, 2, 3)])
+    assert np.allclose(carried[1] / carried[0], albedo, rtol=0.05)
+    assert np.allclose(carried[2, 0] / carried[1, 0], albedo[0], rtol=0.08)
+
+
 def test_halton_is_stratified_and_scrambling_keeps_it(core):
     s = core.sampling
     for seed in (0, 7):
