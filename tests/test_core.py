@@ -56,6 +56,31 @@ def test_particle_roulette_keeps_every_first_bounce_and_never_brightens_a_channe
     assert np.allclose(carried[2, 0] / carried[1, 0], albedo[0], rtol=0.08)
 
 
+def test_a_pixels_light_samples_are_one_scrambled_02_net(core):
+    # Four camera samples of a pixel, four light samples each: each sample's four are a
+    # (0,2,2)-net, the pixel's sixteen a (0,4,2)-net (one point in every elementary
+    # interval of area 1/16), under each pixel's own random scramble.
+    import types
+    count, samples, pixels = 4, 4, 3
+    gb = types.SimpleNamespace(width=pixels, height=1, samples=samples,
+                               pixel=np.tile(np.arange(pixels), samples),
+                               sample=np.repeat(np.arange(samples), pixels))
+    idx = np.arange(samples * pixels)
+    pattern = core.direct_light.light_sample_pattern(count, gb, idx,
+                                                     np.random.default_rng(5))
+    assert pattern.shape == (count, len(idx), 2)
+
+    def net(points, k):
+        return all(len({(int(x * 2 ** a), int(y * 2 ** (k - a))) for x, y in points})
+                   == 2 ** k for a in range(k + 1))
+    for q in range(pixels):
+        mine = gb.pixel == q
+        assert net(pattern[:, mine].reshape(-1, 2), 4)
+        for s in range(samples):
+            assert net(pattern[:, mine & (gb.sample == s)].reshape(-1, 2), 2)
+    assert not np.allclose(pattern[:, 0], pattern[:, 1])   # pixels scrambled apart
+
+
 def test_halton_is_stratified_and_scrambling_keeps_it(core):
     s = core.sampling
     for seed in (0, 7):
