@@ -31,11 +31,13 @@ def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample,
     E = np.zeros((len(gb.hit), 3))
     if clamp_distance <= 0 or vpls.count == 0:
         return E
-    # RAYS_PER_PIXEL compensation rays per pixel (its first shading samples), weighted
-    # by the samples per pixel over them: unbiased, and the discontinuity buffer spreads
-    # them.
-    rays_per_pixel = min(RAYS_PER_PIXEL, gb.samples)
-    idx = np.flatnonzero(gb.hit & (gb.sample < rays_per_pixel))
+    # RAYS_PER_PIXEL compensation rays per pixel, from its first shading samples (each
+    # shooting several when the pixel has fewer), weighted by the samples per pixel
+    # over the rays: unbiased, and the discontinuity buffer spreads them.
+    shooters = min(RAYS_PER_PIXEL, gb.samples)
+    repeats = max(1, RAYS_PER_PIXEL // shooters)
+    rays_per_pixel = shooters * repeats
+    idx = np.repeat(np.flatnonzero(gb.hit & (gb.sample < shooters)), repeats)
     direction = sampling.to_world(sampling.square_to_cosine_hemisphere(rng.random((len(idx), 2))),
                                   gb.normal[idx])
     above = np.einsum('ij,ij->i', direction, gb.geo_normal[idx]) > 0
@@ -53,5 +55,5 @@ def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample,
                                         subset_of_sample[idx[near]], subsets, cancel,
                                         shadow_ray_budget=shadow_ray_budget, seed=seed))
     radiance_y = y.albedo / np.pi * E_y
-    E[idx[near]] = gb.samples / rays_per_pixel * np.pi * radiance_y * weight[:, None]
+    np.add.at(E, idx[near], gb.samples / rays_per_pixel * np.pi * radiance_y * weight[:, None])
     return E
