@@ -16,7 +16,7 @@ def light_sample_pattern(count, gb, idx, rng):
     box: direct light's variance 9.3e-4 -> 7.3e-4 against a pattern per sample). Points
     without pixels (compensation hits) get a Hammersley set, toroidally shifted per
     point (Cranley-Patterson)."""
-    if getattr(gb, "sample", None) is None or gb.samples < 2:
+    if getattr(gb, "sample", None) is None:
         return light_sampling.shifted_pattern(sampling.hammersley(count, 2),
                                               rng.random((len(idx), 2)))
     scramble = rng.integers(0, 1 << 32, (gb.width * gb.height, 2), dtype=np.uint32)
