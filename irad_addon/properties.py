@@ -82,7 +82,7 @@ class IRadSettings(bpy.types.PropertyGroup):
                                         "respects edges merges them (1 disables)")
     light_samples: IntProperty(name="Light Samples", default=_DEFAULT.light_samples,
                                min=1, soft_max=64, max=4096,
-                               description="Shadow rays per pixel to each area light, "
+                               description="Shadow rays per shading sample to each area light, "
                                            "emissive mesh and the world (soft shadows)")
     sequence: EnumProperty(
         name="Sequence", default=_DEFAULT.sequence,
