@@ -121,8 +121,17 @@ def render_image(scene):
     return _render(scene)[0]
 
 
+# A pause before each timed render, so that none pays for the CPU its predecessor
+# used: on this VM our render measured ~20% slower right after a Cycles + OIDN render
+# (both cores busy) than after a pause of 50 ms or more, while Cycles' time did not
+# depend on what ran before it (out/cold4.py, cold5.py in session 10's notes).
+SETTLE_SECONDS = 0.3
+
+
 def timed_render(scene):
-    """(image, seconds); seconds covers bpy.ops.render.render incl. writing the EXR."""
+    """(image, seconds) after a SETTLE_SECONDS pause; seconds covers
+    bpy.ops.render.render incl. writing the EXR."""
+    time.sleep(SETTLE_SECONDS)
     return _render(scene)
 
 
