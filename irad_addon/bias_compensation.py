@@ -57,12 +57,13 @@ def clamp_residual_irradiance(frame, gb, vpls, clamp_distance, subset_of_sample,
     weight = np.maximum(0.0, 1.0 - (y.distance.astype(np.float64) / clamp_distance) ** 2)
     # Light leaving y: reflected direct and VPL light (its emission is direct light at x).
     # Group g of the pixel's `subsets` holds the VPLs g + subsets r of subsets * split.
-    part = subset_of_sample[idx[near]] + subsets * rng.integers(HIT_GROUP_SPLIT, size=len(near))
+    # Without interleaving every gather sees every VPL, as the user asked.
+    split = HIT_GROUP_SPLIT if subsets > 1 else 1
+    part = subset_of_sample[idx[near]] + subsets * rng.integers(split, size=len(near))
     E_y = (direct_light.direct_irradiance(frame, y, max(1, int(light_samples * HIT_LIGHT_SHARE)),
                                           rng, cancel)
-           + gather.indirect_irradiance(frame, y, vpls, clamp_distance, part,
-                                        subsets * HIT_GROUP_SPLIT, cancel,
-                                        shadow_ray_budget=shadow_ray_budget, seed=seed))
+           + gather.indirect_irradiance(frame, y, vpls, clamp_distance, part, subsets * split,
+                                        cancel, shadow_ray_budget=shadow_ray_budget, seed=seed))
     radiance_y = y.albedo / np.pi * E_y
     np.add.at(E, idx[near], gb.samples / rays_per_pixel * np.pi * radiance_y * weight[:, None])
     return E
