@@ -418,23 +418,38 @@ class PendingIrradiance:
         self.traced, self.stop = [], threading.Event()
         # The workers are busy, or the user asked for one thread: run here, now.
         if rays.on_calling_thread_now() or rays.worker_count() < 2:
-            self.futures = [rays.run_now(run, self, t) for t in tasks]
+            self.jobs = [rays.run_now(run, self, t) for t in tasks]
         else:
-            self.futures = [rays.thread_pool().submit(run, self, t) for t in tasks]
+            self.jobs = [rays.Job(rays.thread_pool().submit(run, self, t), run, self, t)
+                         for t in tasks]
 
     def running(self):
         """Whether any task is still queued or running."""
-        return not all(future.done() for future in self.futures)
+        return not all(job.done() for job in self.jobs)
 
     def wait(self, cancel=None, progress=None, stats=None):
         """E (S, 3) once every task is done; `cancel()` is polled and stops the rest.
-        Workers only compute; progress and cancel stay on the calling (Blender) thread."""
-        for done, future in enumerate(as_completed(self.futures), 1):
-            future.result()
+        Tasks no worker has started yet run here, last first (the workers take the
+        first first), so this thread helps instead of idling. Workers only compute;
+        progress and cancel stay on the calling (Blender) thread."""
+        count = len(self.jobs)
+
+        def finished(done, future):
+            future.result()   # a task's error is raised here
             if cancel and cancel():
                 self.stop.set()
             if progress:
-                progress(done / len(self.futures))
+                progress(done / count)
+        taken = []
+        with rays.on_calling_thread():
+            for job in reversed(self.jobs):
+                if self.stop.is_set() or not isinstance(job, rays.Job) or not job.take():
+                    break
+                taken.append(job)
+                finished(len(taken), job.future)
+        rest = [getattr(job, "future", job) for job in self.jobs[:count - len(taken)]]
+        for done, future in enumerate(as_completed(rest), len(taken) + 1):
+            finished(done, future)
         if stats is not None:
             stats["shadow_rays_per_point"] = self.rays_per_point(self)
         return self.E

@@ -76,14 +76,40 @@ def run_now(function, *args):
 def submit_whole(function, *args):
     """function(*args) as one task on the pool, its own rays on the worker's thread
     (on_calling_thread): a worker never waits for tasks queued behind it. With one
-    thread (the user's preference) it runs here and now: one thread works at a time."""
+    thread (the user's preference) it runs here and now: one thread works at a time.
+    Returns a Job: its result() runs the task on the waiting thread if no worker
+    has started it yet."""
     if worker_count() < 2:
-        return run_now(function, *args)
+        return Job(run_now(function, *args), function, *args)
 
     def whole():
         with on_calling_thread():
             return function(*args)
-    return thread_pool().submit(whole)
+    return Job(thread_pool().submit(whole), whole)
+
+
+class Job:
+    """A pool task whose waiter does it itself while it is still queued, instead of
+    idling until a worker comes free."""
+
+    def __init__(self, future, function, *args):
+        self.future, self.function, self.args = future, function, args
+
+    def take(self):
+        """Run the task here if no worker has started it; True if it was run."""
+        if not self.future.cancel():
+            return False
+        self.future = run_now(self.function, *self.args)
+        return True
+
+    def done(self):
+        return self.future.done()
+
+    def result(self, take=True):
+        """The task's result; with `take`, run here first if it is still queued."""
+        if take:
+            self.take()
+        return self.future.result()
 
 
 def shared_map(function, count):

@@ -199,7 +199,9 @@ def vpls_beside_camera_rays(frame, settings, variant_state, check, rows, batch=0
     finally:
         if check():
             stop.set()
-    vpls, variant_info = job.result()
+    # The pool is idle at a frame's start: a worker has the VPLs at once, and taking
+    # them back here would only trade one thread for the other.
+    vpls, variant_info = job.result(take=False)
     return vpls, variant_info, first_gbuffer
 
 
@@ -266,6 +268,11 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
     # averages (2k)^2 of them, so the roulette's noise in the image does not depend on k.
     budget = settings.shadow_ray_budget / k ** 2
     gather_stats = {}
+    # The clamp's compensation, one whole task, is queued first, so that it does not
+    # end the band alone on one worker; the gather's tasks follow, and this thread
+    # takes those still queued when it is done with its own part (PendingIrradiance).
+    compensation = start_compensation(frame, gb, vpls, dmin, subset_of_sample, subsets,
+                                      settings, rows, budget, beside=transfer is None)
     pending = None
     if transfer is None:
         # The VPL gather runs on the pool's workers while this thread does the rest of
@@ -274,9 +281,6 @@ def render_band(frame, vpls, settings, rows, dmin, check, report, tally, light_p
         report(0.05, f"Gathering {vpls.count} VPLs")
         pending = gather.start_indirect(frame, gb, vpls, dmin, subset_of_sample, subsets,
                                         lightcuts, budget, seed=(settings.seed, rows[0]))
-    # The clamp's compensation queues behind the gather, whole, on a worker.
-    compensation = start_compensation(frame, gb, vpls, dmin, subset_of_sample, subsets,
-                                      settings, rows, budget, beside=pending is not None)
     try:
         with rays.on_calling_thread(pending.running) if pending else contextlib.nullcontext():
             E_direct, new_film, refined, E_refined = band_direct_light(

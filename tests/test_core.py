@@ -278,6 +278,35 @@ def test_shared_map_takes_a_free_workers_help_and_never_waits_on_a_busy_one(core
         rays.shared_map(lambda i: 1 // (i - 3), 6)
 
 
+def test_a_queued_job_runs_on_the_thread_that_waits_for_it(core):
+    # Workers held by other work: waiting for a job still queued does it here, and
+    # the gather's queued tasks likewise, instead of idling behind the queue.
+    rays = core.rays
+    here = threading.current_thread()
+    release = threading.Event()
+    held = [rays.thread_pool().submit(release.wait) for _ in range(rays.worker_count())]
+    try:
+        job = rays.submit_whole(lambda: threading.current_thread())
+        assert job.result() is here
+        sd = core.scene_data
+        light = sd.PointLight(np.array([0.2, 0.1, 0.6]), np.ones(3), 100.0, 0.0)
+        data = synthetic.scene(sd, synthetic.closed_box(3), [0.7] * 3, lights=[light],
+                               camera=synthetic.camera(sd, size=32))
+        frame = core.frame.prepare_frame(data)
+        gb = core.gbuffer.build_gbuffer(frame, data.camera, 1, np.random.default_rng(0))
+        vpls = core.vpl.trace_vpls(frame, 256, 8, seed=0)
+        everyone = np.zeros(len(gb.hit), np.int64)
+        pending = core.gather.start_indirect(frame, gb, vpls, 0.05, everyone, 1)
+        assert len(pending.jobs) > 1
+        E = pending.wait()
+    finally:
+        release.set()
+        for future in held:
+            future.result()
+    free = core.gather.indirect_irradiance(frame, gb, vpls, 0.05, everyone, 1)
+    assert np.array_equal(E, free) and E.max() > 0
+
+
 def test_the_image_does_not_depend_on_the_thread_count(core):
     # VPLs, gather, compensation and direct light run on workers beside the render
     # thread, in tasks of their own: the same image as on one thread.
