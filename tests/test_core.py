@@ -19,6 +19,24 @@ def render(core, data, **settings):
     return core.render.render_frame(data, from_settings)
 
 
+@contextlib.contextmanager
+def one_thread(core):
+    """The user's preference at one thread within the block, then one per CPU core
+    again, as the other tests run."""
+    core.rays.set_worker_count(1)
+    try:
+        yield
+    finally:
+        core.rays.set_worker_count(0)
+
+
+def ceiling_light(sd, half_size):
+    """A square area light of side 2 half_size, 0.9 up, facing down."""
+    return sd.AreaLight(np.array([0.0, 0.0, 0.9]), np.array([half_size, 0, 0]),
+                        np.array([0, half_size, 0]), np.array([0.0, 0.0, -1.0]), np.ones(3),
+                        50.0, "RECTANGLE")
+
+
 @pytest.mark.parametrize("albedo", [0.5, 0.8])
 def test_furnace_radiance_is_emission_over_one_minus_albedo(core, albedo):
     # A closed box that emits 1 everywhere and reflects `albedo`: L = 1 / (1 - albedo).
@@ -235,11 +253,8 @@ def test_one_thread_preference_keeps_the_gather_and_vpls_on_the_render_thread(co
 
     monkeypatch.setattr(core.gather, "group_irradiance", spy(group_irradiance))
     monkeypatch.setattr(core.variants, "vpls_for_frame", spy(vpls_for_frame))
-    core.rays.set_worker_count(1)
-    try:
+    with one_thread(core):
         image = render(core, data, particles=128, seed=1).passes["IRAD Indirect"]
-    finally:
-        core.rays.set_worker_count(0)   # one per CPU core, as the other tests run
     assert threads == {threading.current_thread()}
     assert image.max() > 0
 
@@ -311,39 +326,29 @@ def test_the_image_does_not_depend_on_the_thread_count(core):
     # VPLs, gather, compensation and direct light run on workers beside the render
     # thread, in tasks of their own: the same image as on one thread.
     sd = core.scene_data
-    light = sd.AreaLight(np.array([0.0, 0.0, 0.9]), np.array([0.3, 0, 0]),
-                         np.array([0, 0.3, 0]), np.array([0.0, 0.0, -1.0]), np.ones(3), 50.0,
-                         "RECTANGLE")
+    light = ceiling_light(sd, 0.3)
     panel = synthetic.grid_quad(2, 0.4).astype(np.float64) + [0.0, 0.0, -0.3]
     triangles = np.concatenate([synthetic.closed_box(3), panel.astype(np.float32)])
     data = synthetic.scene(sd, triangles, [0.7] * 3, lights=[light],
                            camera=synthetic.camera(sd, size=48))
     shared = render(core, data, particles=256, seed=2).passes["Combined"]
-    core.rays.set_worker_count(1)
-    try:
+    with one_thread(core):
         alone = render(core, data, particles=256, seed=2).passes["Combined"]
-    finally:
-        core.rays.set_worker_count(0)
     assert np.array_equal(shared, alone) and shared.max() > 0
 
 
 def test_direct_light_does_not_depend_on_the_thread_that_ran_it(core):
     # direct_irradiance's tasks of points may run on a worker: the same light either way.
     sd = core.scene_data
-    light = sd.AreaLight(np.array([0.0, 0.0, 0.9]), np.array([0.2, 0, 0]),
-                         np.array([0, 0.2, 0]), np.array([0.0, 0.0, -1.0]), np.ones(3), 50.0,
-                         "RECTANGLE")
+    light = ceiling_light(sd, 0.2)
     data = synthetic.scene(sd, synthetic.closed_box(3), [0.7] * 3, lights=[light],
                            camera=synthetic.camera(sd, size=64))
     frame = core.frame.prepare_frame(data)
     gb = core.gbuffer.build_gbuffer(frame, data.camera, 4, np.random.default_rng(0))
     assert gb.hit.sum() >= 2 * core.direct_light.POINTS_PER_TASK   # several tasks
     shared = core.direct_light.direct_irradiance(frame, gb, 4, np.random.default_rng(1))
-    core.rays.set_worker_count(1)
-    try:
+    with one_thread(core):
         alone = core.direct_light.direct_irradiance(frame, gb, 4, np.random.default_rng(1))
-    finally:
-        core.rays.set_worker_count(0)
     assert np.array_equal(shared, alone) and shared.max() > 0
 
 
