@@ -69,7 +69,7 @@ class Config:
 CONFIGS = [
     Config("default", {}, note="scene.irad defaults, particle count varied"),
     Config("no edge samples", {"coverage_samples": 0}, (512, 2048, 8192),
-           note="every camera ray gathers: 4 per pixel"),
+           note="the shading samples alone, no coverage rays at edges"),
     Config("no interleaving", {"interleave": 1}, (128, 512, 2048)),
     Config("lightcuts", {"use_lightcuts": True}, (256, 1024, 4096, 16384)),
     Config("lightcuts, no interleaving", {"use_lightcuts": True, "interleave": 1},
