@@ -14,7 +14,8 @@ from .gbuffer import build_gbuffer
 
 @dataclass
 class RenderSettings:
-    particles: int = 2048
+    particles: int = 1536        # ~3700 VPLs in the Cornell boxes: against 2048, 11% less
+                                 # time for 7% more relMSE (area light), 4% (point light)
     max_bounces: int = 32        # Russian roulette ends most paths long before this
     clamp: float = 5.0           # VPL clamping distance in units of the mean VPL spacing:
                                  # with bias compensation, 5 has 9% / 6% less relMSE than

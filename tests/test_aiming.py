@@ -271,7 +271,7 @@ def test_guide_only_for_a_sun_around_the_scene_and_a_useful_pilot(core):
 
 def test_guided_room_matches_cycles_with_less_error(core, cycles_room):
     # The engine's own path (variants.vpls_for_frame) at default settings (but SHADING),
-    # against the same VPL budget shot around the scene.
+    # against the same VPL budget (2048 particles) shot around the scene.
     scene, data = sunlit_room(core, 48, portal=False)
     plain = core.frame.prepare_frame(data)
     error = {}
@@ -279,7 +279,7 @@ def test_guided_room_matches_cycles_with_less_error(core, cycles_room):
         images = []
         for seed in (0, 1):
             if name == "guided":
-                settings = core.render.RenderSettings(seed=seed, **SHADING)
+                settings = core.render.RenderSettings(seed=seed, particles=2048, **SHADING)
                 result = core.render.render_frame(data, settings)
                 images.append(result.passes["Combined"][..., :3])
             else:
