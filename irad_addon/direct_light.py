@@ -20,8 +20,7 @@ def light_sample_pattern(count, gb, idx, rng):
         return light_sampling.shifted_pattern(sampling.hammersley(count, 2),
                                               rng.random((len(idx), 2)))
     scramble = rng.integers(0, 1 << 32, (gb.width * gb.height, 2), dtype=np.uint32)
-    index = gb.sample[idx][None, :] * count + np.arange(count)[:, None]
-    return sampling.scrambled_02(index, scramble[gb.pixel[idx]][None].repeat(count, 0))
+    return sampling.scrambled_02(gb.sample[idx] * count, count, scramble[gb.pixel[idx]])
 
 
 # Points per task of direct_irradiance: each thread writes its tasks' shadow segments

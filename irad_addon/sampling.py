@@ -210,37 +210,37 @@ def cranley_patterson(points, seed):
     return (points + shift) % 1.0
 
 
-def scrambled_02(index, scramble):
-    """Points index (any shape) of the (0,2)-sequence in base 2 (van der Corput and
-    Sobol's second dimension; Kollig & Keller 2002, "Efficient multidimensional
-    sampling"), each XOR-scrambled by its row of `scramble` (uint32, index.shape + (2,)):
-    a random digital shift, so that every aligned block of 2^k points stays a
-    (0,k,2)-net, stratified in every elementary interval. Shape index.shape + (2,)."""
-    index = np.ascontiguousarray(index, np.uint32)
-    scramble = np.ascontiguousarray(scramble, np.uint32).reshape(-1, 2)
-    out = np.empty((index.size, 2))
-    _scrambled_02(index.ravel(), scramble, out)
-    return out.reshape(index.shape + (2,))
+def scrambled_02(first, count, scramble):
+    """(count, n, 2): for each of n points, points first[i] .. first[i] + count - 1 of
+    the (0,2)-sequence in base 2 (van der Corput and Sobol's second dimension; Kollig &
+    Keller 2002, "Efficient multidimensional sampling"), XOR-scrambled by the point's
+    row of `scramble` (uint32 (n, 2)): a random digital shift, so that every aligned
+    block of 2^k points stays a (0,k,2)-net, stratified in every elementary interval."""
+    first = np.ascontiguousarray(first, np.uint32)
+    out = np.empty((count, len(first), 2))
+    _scrambled_02(first, np.ascontiguousarray(scramble, np.uint32), out)
+    return out
 
 
 @njit(cache=True, nogil=True)
-def _scrambled_02(index, scramble, out):
+def _scrambled_02(first, scramble, out):
     scale = 1.0 / 4294967296.0
-    for k in range(len(index)):
-        n = index[k]
-        x = np.uint32(0)      # van der Corput: the bits of n reversed
-        y = np.uint32(0)      # Sobol' 2: v runs through 1 << 31 xor-shifted
-        v = np.uint32(1 << 31)
-        bit = np.uint32(1 << 31)
-        while n:
-            if n & 1:
-                x ^= bit
-                y ^= v
-            n >>= 1
-            bit >>= np.uint32(1)
-            v = np.uint32(v ^ (v >> np.uint32(1)))
-        out[k, 0] = (x ^ scramble[k, 0]) * scale
-        out[k, 1] = (y ^ scramble[k, 1]) * scale
+    for i in range(len(first)):
+        for j in range(out.shape[0]):
+            n = first[i] + np.uint32(j)
+            x = np.uint32(0)      # van der Corput: the bits of n reversed
+            y = np.uint32(0)      # Sobol' 2: v runs through 1 << 31 xor-shifted
+            v = np.uint32(1 << 31)
+            bit = np.uint32(1 << 31)
+            while n:
+                if n & 1:
+                    x ^= bit
+                    y ^= v
+                n >>= 1
+                bit >>= np.uint32(1)
+                v = np.uint32(v ^ (v >> np.uint32(1)))
+            out[j, i, 0] = (x ^ scramble[i, 0]) * scale
+            out[j, i, 1] = (y ^ scramble[i, 1]) * scale
 
 
 def jittered_2d(count, rng):
