@@ -217,8 +217,8 @@ def _kept_terms(p, n, g, columns, m, min_distance2, inv_bound, out, keep):
     """_pair_weight of the point (position p, shading normal n, geometric normal g)
     with the first m VPLs of `columns` (_group_terms) into out[:m], and each pair's
     probability to keep its shadow ray, min(1, term x flux weight x inv_bound) (1
-    where inv_bound is 0: no roulette), into keep[:m] (0 for a zero term); returns the sum of the terms times the flux weights.
-    Branch-free, so it runs in SIMD lanes."""
+    where inv_bound is 0: no roulette), into keep[:m] (0 for a zero term); returns the
+    sum of the terms times the flux weights. Branch-free, so it runs in SIMD lanes."""
     total = 0.0
     for j in range(m):
         dx, dy, dz = columns[0, j] - p[0], columns[1, j] - p[1], columns[2, j] - p[2]
@@ -417,11 +417,10 @@ class PendingIrradiance:
         self.E, self.rays_per_point = E, rays_per_point
         self.traced, self.stop = [], threading.Event()
         # The workers are busy, or the user asked for one thread: run here, now.
-        if rays.on_calling_thread_now() or rays.worker_count() < 2:
-            self.jobs = [rays.run_now(run, self, t) for t in tasks]
-        else:
-            self.jobs = [rays.Job(rays.thread_pool().submit(run, self, t), run, self, t)
-                         for t in tasks]
+        here = rays.on_calling_thread_now() or rays.worker_count() < 2
+        start = (lambda t: rays.run_now(run, self, t)) if here else (
+            lambda t: rays.thread_pool().submit(run, self, t))
+        self.jobs = [rays.Job(start(t), run, self, t) for t in tasks]
 
     def running(self):
         """Whether any task is still queued or running."""
@@ -442,12 +441,12 @@ class PendingIrradiance:
                 progress(done / count)
         taken = []
         with rays.on_calling_thread():
-            for job in reversed(self.jobs):
-                if self.stop.is_set() or not isinstance(job, rays.Job) or not job.take():
+            for job in reversed(self.jobs):   # a task already run or running stops it
+                if self.stop.is_set() or not job.take():
                     break
                 taken.append(job)
                 finished(len(taken), job.future)
-        rest = [getattr(job, "future", job) for job in self.jobs[:count - len(taken)]]
+        rest = [job.future for job in self.jobs[:count - len(taken)]]
         for done, future in enumerate(as_completed(rest), len(taken) + 1):
             finished(done, future)
         if stats is not None:

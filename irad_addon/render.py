@@ -25,7 +25,7 @@ class RenderSettings:
                                  # edges have their coverage samples, direct light its
                                  # light samples; 1 takes 25-30% off the Cornell boxes'
                                  # time against 4 (with 4 x the light samples, 2 x the
-                                 # budget) for +4% / -3% relMSE, same in the sun-lit room
+                                 # budget) for +3% / -3% relMSE, same in the sun-lit room
     coverage_samples: int = 16   # camera rays per pixel for edges (antialiasing.py)
     interleave: int = 4          # k: k x k interleaved VPL subsets + discontinuity buffer
     bias_compensation: bool = True   # restore the energy clamping removes (Kollig & Keller)
